@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# Idempotent set-up of everything advsim_ros needs on a fresh Debian machine with CPython 3.11:
+#   1. Debian packages the Python wheels need (libusb-1.0-0 for open3d),
+#   2. .venv with the pinned requirements (real ROS 2 Jazzy from the wheels, torch CPU, ...),
+#   3. the advsim_msgs interface package built with rosidl and installed into the venv,
+#   4. advsim_ros installed editable (console scripts for every node and the `advsim` command).
+# Each step is skipped when the inputs it depends on have not changed since it last ran (a hash
+# stamp in .venv/.advsim-stamps), so a second run takes about a second.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$(pwd)
+VENV="$ROOT/.venv"
+STAMPS="$VENV/.advsim-stamps"
+PYTHON=${PYTHON:-python3.11}
+command -v "$PYTHON" >/dev/null || PYTHON=python3
+
+log() { printf '\033[1msetup:\033[0m %s\n' "$*"; }
+fail() { printf 'setup: error: %s\n' "$*" >&2; exit 1; }
+hash_of() { cat "$@" | sha256sum | cut -c1-16; }
+# pip's quiet mode still warns about index locations this machine's pip configuration names but lacks.
+pip_install() { "$VENV/bin/python" -m pip install -q --disable-pip-version-check "$@" 2> >(grep -v "^WARNING: Location '" >&2); }
+stamp_ok() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+stamp_set() { mkdir -p "$STAMPS" && echo "$2" > "$STAMPS/$1"; }
+
+"$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
+  || fail "the ROS 2 Jazzy wheels need CPython 3.11; $PYTHON is $("$PYTHON" --version 2>&1)"
+
+# 1. Debian packages (open3d's import needs libusb-1.0).
+if ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then
+  log "installing Debian package libusb-1.0-0 (needed by open3d)"
+  [ "$(id -u)" = 0 ] || fail "libusb-1.0-0 is missing and installing it needs root: apt-get install -y libusb-1.0-0"
+  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
+
+# 2. Virtual environment with the pinned requirements.
+req_hash=$(hash_of requirements/base.txt requirements/dev.txt)
+if [ ! -x "$VENV/bin/python" ]; then
+  log "creating $VENV"
+  "$PYTHON" -m venv "$VENV"
+fi
+if ! stamp_ok requirements "$req_hash"; then
+  log "installing pinned requirements into .venv (first time: several minutes)"
+  pip_install --upgrade pip==26.3 setuptools==84.2.1 wheel==0.48.0
+  # torch first and alone, so that nothing can pull a CUDA build in its place.
+  pip_install "$(grep '^torch==' requirements/base.txt)"
+  pip_install -r requirements/base.txt -r requirements/dev.txt
+  rm -f "$STAMPS/msgs" "$STAMPS/package"
+  stamp_set requirements "$req_hash"
+fi
+
+# 3. advsim_msgs: rosidl interface package built with the wheels' ament_cmake into the venv prefix.
+msgs_hash=$(hash_of msg_defs/advsim_msgs/CMakeLists.txt msg_defs/advsim_msgs/package.xml msg_defs/advsim_msgs/msg/*.msg scripts/setup.sh)
+if ! stamp_ok msgs "$msgs_hash"; then
+  log "building advsim_msgs (rosidl) into .venv"
+  # The message wheels' exported CMake targets name the include folders of the machine that built them;
+  # point them at this interpreter's and this venv's numpy.
+  py_include=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
+  np_include=$("$VENV/bin/python" -c 'import numpy; print(numpy.get_include())')
+  { grep -rlE '/opt/python/cp311-cp311' "$VENV/share" --include='*.cmake' || true; } | while read -r f; do
+    sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_include#g" \
+           -e "s#/opt/python/cp311-cp311/include/python3.11#$py_include#g" "$f"
+  done
+  rm -rf "$ROOT/build/advsim_msgs" && mkdir -p "$ROOT/build"
+  cmake -S msg_defs/advsim_msgs -B build/advsim_msgs -G "Unix Makefiles" \
+    -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_PREFIX_PATH="$VENV" \
+    -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release \
+    > build/advsim_msgs.log 2>&1 || { mkdir -p build; tail -40 build/advsim_msgs.log >&2; fail "cmake configure of advsim_msgs failed (log: build/advsim_msgs.log)"; }
+  cmake --build build/advsim_msgs -j2 >> build/advsim_msgs.log 2>&1 \
+    || { tail -40 build/advsim_msgs.log >&2; fail "build of advsim_msgs failed (log: build/advsim_msgs.log)"; }
+  cmake --install build/advsim_msgs >> build/advsim_msgs.log 2>&1 \
+    || { tail -40 build/advsim_msgs.log >&2; fail "install of advsim_msgs failed (log: build/advsim_msgs.log)"; }
+  "$VENV/bin/python" -c 'from advsim_msgs.msg import QueryScore; QueryScore()' \
+    || fail "advsim_msgs was built but does not import from the venv"
+  stamp_set msgs "$msgs_hash"
+fi
+
+# 4. advsim_ros, editable: code changes need no reinstall; entry points change with setup.py.
+pkg_hash=$(hash_of src/advsim_ros/setup.py src/advsim_ros/setup.cfg src/advsim_ros/package.xml)
+if ! stamp_ok package "$pkg_hash"; then
+  log "installing advsim_ros (editable) into .venv"
+  pip_install --no-deps --no-build-isolation -e src/advsim_ros
+  stamp_set package "$pkg_hash"
+fi
+log "ready: . .venv/bin/activate  (advsim --help)"

@@ -1,0 +1,33 @@
+"""ament_python package advsim_ros: the attack graph's nodes, the `advsim` command and the pure core."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "advsim_ros"
+
+# One console script per node (ros2 run advsim_ros <name>), plus the `advsim` command.
+NODES: dict[str, str] = {}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/params", glob("../../params/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="advsim_ros maintainers",
+    maintainer_email="maintainers@advsim-ros.dev",
+    description="AdvSim as a ROS 2 node graph: safety-critical scenarios for LiDAR-based autonomy stacks.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "advsim = advsim_ros.cli:main",
+            *(f"{name} = {target}" for name, target in NODES.items()),
+        ],
+    },
+)
