@@ -11,8 +11,9 @@ These types never import rclpy or ROS messages (see advsim_ros.ros for conversio
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 import numpy.typing as npt
@@ -54,7 +55,7 @@ def _is_rigid_transform(matrix: FloatArray) -> bool:
     return bool(orthonormal and bottom and np.all(np.linalg.det(rotation) > 0))
 
 
-class ActorClass(str, Enum):
+class ActorClass(StrEnum):
     """Coarse actor categories shared by importers, behaviours and metrics."""
 
     VEHICLE = "vehicle"
@@ -84,7 +85,9 @@ class ActorTrack:
         _require(count >= 1, f"ActorTrack {self.actor_id}: needs at least one observation")
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "stamps_ns", stamps)
-        object.__setattr__(self, "centers", _as_float_array(f"ActorTrack {self.actor_id} centers", self.centers, (count, 3)))
+        object.__setattr__(
+            self, "centers", _as_float_array(f"ActorTrack {self.actor_id} centers", self.centers, (count, 3))
+        )
         object.__setattr__(self, "yaws", _as_float_array(f"ActorTrack {self.actor_id} yaws", self.yaws, (count,)))
 
     @property
@@ -148,7 +151,7 @@ class SensorModel:
 
     @property
     def num_azimuths(self) -> int:
-        return int(round(2.0 * np.pi / self.azimuth_resolution))
+        return round(2.0 * np.pi / self.azimuth_resolution)
 
 
 POINT_XYZ_FIELDS = ("x", "y", "z")
@@ -171,7 +174,9 @@ class Sweep:
         names = self.points.dtype.names or ()
         missing = [name for name in POINT_XYZ_FIELDS if name not in names]
         _require(not missing, f"Sweep at {self.stamp_ns} ns: point fields {missing} missing (has {list(names)})")
-        _require(self.points.ndim == 1, f"Sweep at {self.stamp_ns} ns: points must be 1-D, got shape {self.points.shape}")
+        _require(
+            self.points.ndim == 1, f"Sweep at {self.stamp_ns} ns: points must be 1-D, got shape {self.points.shape}"
+        )
         pose = _as_float_array(f"Sweep at {self.stamp_ns} ns sensor_pose", self.sensor_pose, (4, 4))
         _require(_is_rigid_transform(pose), f"Sweep at {self.stamp_ns} ns: sensor_pose is not a rigid transform")
         object.__setattr__(self, "sensor_pose", pose)
@@ -235,7 +240,7 @@ class Scenario:
             )
         sweep_stamps = [sweep.stamp_ns for sweep in self.sweeps]
         _require(
-            all(b > a for a, b in zip(sweep_stamps, sweep_stamps[1:], strict=False)),
+            all(b > a for a, b in itertools.pairwise(sweep_stamps)),
             f"Scenario {self.scenario_id}: sweeps must be in strictly increasing time order",
         )
         _require(

@@ -1,0 +1,71 @@
+"""Generic ROS message <-> plain Python conversion (rosidl_runtime_py is not available as a wheel).
+
+Used for summaries, logs and tests: a message becomes nested dicts/lists of builtins that JSON
+can hold, and such a dict becomes a message again, field by field, through rosidl introspection.
+"""
+
+from __future__ import annotations
+
+import array
+import importlib
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from rosidl_parser.definition import AbstractNestedType, NamespacedType
+
+
+def message_class(type_name: str) -> type[Any]:
+    """The message class for 'pkg/msg/Name' or 'pkg/Name'."""
+    parts = type_name.split("/")
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    if len(parts) != 3 or not all(parts):
+        raise ValueError(f"not a message type name: {type_name!r} (expected pkg/msg/Name)")
+    package, kind, name = parts
+    try:
+        module = importlib.import_module(f"{package}.{kind}")
+        return getattr(module, name)  # type: ignore[no-any-return]
+    except (ImportError, AttributeError) as error:
+        raise ValueError(f"unknown message type {type_name!r}: {error}") from error
+
+
+def message_to_dict(message: Any) -> dict[str, Any]:
+    """A message as nested dicts and lists of builtins, in field order."""
+    return {name: _value_to_builtin(getattr(message, name)) for name in message.get_fields_and_field_types()}
+
+
+def _value_to_builtin(value: Any) -> Any:
+    if hasattr(value, "get_fields_and_field_types"):
+        return message_to_dict(value)
+    if isinstance(value, (list, tuple, array.array, np.ndarray)):
+        return [_value_to_builtin(item) for item in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, bytes):
+        return list(value)
+    return value
+
+
+def dict_to_message(message_type: type[Any], values: Mapping[str, Any]) -> Any:
+    """Build a message of `message_type` from a dict as produced by message_to_dict (missing keys keep defaults)."""
+    message = message_type()
+    fields = message_type.get_fields_and_field_types()
+    unknown = set(values) - set(fields)
+    if unknown:
+        raise ValueError(f"{message_type.__name__} has no fields {sorted(unknown)}")
+    for slot_type, name in zip(message_type.SLOT_TYPES, fields, strict=True):
+        if name in values:
+            setattr(message, name, _builtin_to_value(slot_type, values[name]))
+    return message
+
+
+def _builtin_to_value(slot_type: Any, value: Any) -> Any:
+    if isinstance(slot_type, NamespacedType):
+        return dict_to_message(message_class("/".join([*slot_type.namespaces, slot_type.name])), value)
+    if isinstance(slot_type, AbstractNestedType):
+        item_type = slot_type.value_type
+        if isinstance(item_type, NamespacedType):
+            return [_builtin_to_value(item_type, item) for item in value]
+        return list(value)
+    return value
