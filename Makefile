@@ -14,6 +14,7 @@ setup:
 lint: setup
 	$(PY) -m ruff check src tests bench scripts
 	$(PY) -m ruff format --check src tests bench scripts
+	$(VENV)/bin/hadolint docker/Dockerfile
 
 typecheck: setup
 	$(PY) -m mypy
