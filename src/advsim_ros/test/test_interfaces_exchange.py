@@ -39,6 +39,17 @@ HEADER = {"stamp": {"sec": 42, "nanosec": 7}, "frame_id": "world"}
 
 # Every field differs from its default, so a field that is dropped or mangled on the way shows up.
 SAMPLES: dict[str, list[dict]] = {
+    "advsim_msgs/msg/ActorSelection": [
+        {
+            "header": HEADER,
+            "scenario_id": "kitti_0000",
+            "actor_ids": ["4", "11"],
+            "dimension": 24,
+            "delta_names": ["dx0", "dy0"],
+            "logged_tracks": [_track("4")],
+            "feasible_candidates": [1200, 350],
+        }
+    ],
     "advsim_msgs/msg/ActorState": [_state(3, 12.25)],
     "advsim_msgs/msg/ActorTrack": [_track("car:7")],
     "advsim_msgs/msg/ActorTrackArray": [{"header": HEADER, "query_id": 9, "tracks": [_track("a"), _track("b")]}],
@@ -77,6 +88,8 @@ SAMPLES: dict[str, list[dict]] = {
             "num_frames": 60,
             "segment_start": {"sec": 100, "nanosec": 0},
             "segment_end": {"sec": 107, "nanosec": 500},
+            "sweeps_delivered": 10,
+            "plans_received": 9,
         }
     ],
     "advsim_msgs/msg/Polyline": [{"x": [1.0, 2.0, 3.5], "y": [-1.0, 0.5, 4.0]}],

@@ -134,6 +134,10 @@ class Launcher:
         self._running.append(_Running(spec, process, log_path, log_file))
         return process
 
+    @property
+    def log_dir(self) -> Path:
+        return self._log_dir
+
     def log_path(self, name: str) -> Path:
         return self._log_dir / f"{name}.log"
 
