@@ -3,10 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+from tqdm import tqdm
 
 from advsim_ros import __version__
+from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
+from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.report import recorded_score
 
 
 class CommandError(RuntimeError):
@@ -20,8 +30,227 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"advsim_ros {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    del subparsers  # each area adds its commands here through _add_<name>_commands(subparsers)
+    # each area adds its commands here through _add_<name>_commands(subparsers)
+    _add_data_commands(subparsers)
+    _add_attack_commands(subparsers)
     return parser
+
+
+def _add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """`advsim convert kitti|av2` and `advsim curate` (logic in advsim_ros.io.commands)."""
+    from advsim_ros.io import commands
+
+    bag_params = {"type": Path, "default": None, "help": "bag topics and frames (default: params/bag.yaml values)"}
+    convert = subparsers.add_parser("convert", help="convert a driving log into a scenario bag (rosbag2, MCAP)")
+    sources = convert.add_subparsers(dest="source", required=True, metavar="SOURCE")
+
+    kitti = sources.add_parser("kitti", help="KITTI tracking sequence (velodyne/, label_02/, calib/, poses/)")
+    kitti.add_argument("root", type=Path, help="dataset folder, e.g. ../shared/data/kitti_tracking_0000")
+    kitti.add_argument("--seq", default="0000", help="sequence number (default 0000)")
+    kitti.add_argument("--poses", type=Path, default=None, help="poses file (default: root/poses/<seq>_*velo*.txt)")
+    kitti.add_argument("-o", "--output", type=Path, required=True, help="bag folder to write")
+    kitti.add_argument("--params", **bag_params)
+    kitti.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    kitti.set_defaults(
+        run=lambda args: _report(
+            commands.convert_kitti(
+                args.root, args.seq, args.output, poses=args.poses, params=args.params, overwrite=args.overwrite
+            ).describe()
+        )
+    )
+
+    av2 = sources.add_parser("av2", help="Argoverse 2 log (annotations, ego poses, vector map, LiDAR if present)")
+    av2.add_argument("log_dir", type=Path, help="log folder, e.g. ../shared/data/av2/<log id>")
+    av2.add_argument("-o", "--output", type=Path, required=True, help="bag folder to write")
+    av2.add_argument("--params", **bag_params)
+    av2.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    av2.set_defaults(
+        run=lambda args: _report(
+            commands.convert_av2(args.log_dir, args.output, params=args.params, overwrite=args.overwrite).describe()
+        )
+    )
+
+    curate = subparsers.add_parser("curate", help="rank a bag's 6 s windows by the collision rate of sampled plans")
+    curate.add_argument("bag", type=Path, help="scenario bag (or a bag of your own, see --bag-params)")
+    curate.add_argument("--params", type=Path, default=None, help="curation settings (default: params/curation.yaml)")
+    curate.add_argument("--bag-params", **bag_params)
+    curate.add_argument("-o", "--output", type=Path, default=None, help="also write the best window as a bag")
+    curate.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    curate.add_argument("--json", action="store_true", help="print the windows as JSON")
+    curate.set_defaults(run=_run_curate)
+
+
+def _run_curate(args: argparse.Namespace) -> int:
+    from advsim_ros.io import commands
+
+    report = commands.curate_bag(
+        args.bag, params=args.params, bag_params=args.bag_params, output=args.output, overwrite=args.overwrite
+    )
+    return _report(report.as_json() if args.json else report.as_table())
+
+
+def _report(text: str) -> int:
+    print(text)
+    return 0
+
+
+def _add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    attack = subparsers.add_parser("attack", help="attack a stack on a scenario bag: search, bag out, summary, BEV")
+    attack.add_argument("bag", type=Path, help="scenario bag (rosbag2 folder), e.g. from `advsim convert`")
+    _add_stack_arguments(attack)
+    attack.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
+    attack.add_argument("--queries", type=int, default=75, help="search queries (default 75, the paper's BO budget)")
+    attack.add_argument("--actors", type=int, default=1, help="actors perturbed at once (default 1)")
+    attack.add_argument("--seed", type=int, default=0, help="seed of the search (default 0)")
+    attack.add_argument(
+        "--window-start", type=int, default=None, help="first frame of the 6 s window (default: the curated one)"
+    )
+    attack.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes the run)")
+    attack.set_defaults(run=_run_attack)
+
+    replay = subparsers.add_parser("replay", help="re-run a stack on a saved adversarial scenario and score it")
+    replay.add_argument("bag", type=Path, help="OUTDIR/adversarial of an attack")
+    _add_stack_arguments(replay)
+    replay.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: <bag>-replay)")
+    replay.add_argument(
+        "--check", action="store_true", help="exit 3 unless the score equals the recorded one (regression test)"
+    )
+    replay.add_argument("--tolerance", type=float, default=1e-6, help="--check: allowed |L_adv difference|")
+    replay.set_defaults(run=_run_replay)
+
+    demo = subparsers.add_parser("demo", help="synthesize a street log and attack the reference stack on it")
+    demo.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    demo.add_argument("--queries", type=int, default=20, help="search queries (default 20)")
+    demo.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic log and the search")
+    demo.set_defaults(run=_run_demo)
+
+
+def _add_stack_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--stack",
+        default="reference",
+        help='"reference" (modular), "learned", or a command line that starts your stack',
+    )
+    parser.add_argument(
+        "--remap",
+        action="append",
+        default=[],
+        metavar="FROM:=TO",
+        help="topic remapping for the stack, e.g. /sensor/lidar/points:=/points_raw (repeatable)",
+    )
+    parser.add_argument("--remap-file", type=Path, default=None, help="YAML mapping of contract topic -> your topic")
+    parser.add_argument("--no-restart", action="store_true", help="do not restart the stack when it exits")
+    parser.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
+
+
+def _stack_spec(args: argparse.Namespace) -> StackSpec:
+    remappings: dict[str, str] = {}
+    if args.remap_file is not None:
+        try:
+            loaded = yaml.safe_load(args.remap_file.read_text(encoding="utf-8"))
+        except yaml.YAMLError as error:
+            raise CommandError(f"{args.remap_file}: not valid YAML ({error})") from error
+        if not isinstance(loaded, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in loaded.items()
+        ):
+            raise CommandError(f"{args.remap_file}: expected a mapping of topic names to topic names")
+        remappings.update(loaded)
+    for item in args.remap:
+        source, separator, target = item.partition(":=")
+        if not separator or not source or not target:
+            raise CommandError(f"--remap {item!r}: expected FROM:=TO")
+        remappings[source] = target
+    spec = StackSpec.parse(args.stack, remappings)
+    return dataclasses.replace(spec, restart=not args.no_restart)
+
+
+def _progress_printer(total: int) -> Any:
+    bar = tqdm(total=total, unit="query", desc="attack", dynamic_ncols=True)
+
+    def update(progress: dict[str, Any]) -> None:
+        bar.update(progress["scored"] - bar.n)
+        best = progress["best_adversarial_loss"]
+        bar.set_postfix(best_L_adv="-" if math.isnan(best) else f"{best:.3f}", failed=progress["failed"])
+
+    update.close = bar.close  # type: ignore[attr-defined]
+    return update
+
+
+def _run_attack(args: argparse.Namespace) -> int:
+    options = AttackOptions(
+        bag=args.bag,
+        out_dir=args.out,
+        stack=_stack_spec(args),
+        algorithm=args.algo,
+        queries=args.queries,
+        actors=args.actors,
+        seed=args.seed,
+        window_start_frame=args.window_start,
+        plan_timeout=args.plan_timeout,
+    )
+    return _attack_and_report(options)
+
+
+def _attack_and_report(options: AttackOptions) -> int:
+    progress = _progress_printer(options.queries + 2)
+    try:
+        result = run_attack(options, progress)
+    except AttackError as error:
+        raise CommandError(str(error)) from error
+    finally:
+        progress.close()
+    summary = result.summary
+    original, adversarial = summary["original"] or {}, summary["adversarial"] or {}
+    print(f"original    L_adv {original.get('adversarial_loss')}  collision@5s {original.get('collision_5s')}")
+    print(f"adversarial L_adv {adversarial.get('adversarial_loss')}  collision@5s {adversarial.get('collision_5s')}")
+    print(f"outputs: {result.out_dir}/adversarial  {result.out_dir}/summary.json  {result.out_dir}/bev.png")
+    return 0
+
+
+def _run_replay(args: argparse.Namespace) -> int:
+    out = args.out or args.bag.with_name(f"{args.bag.name}-replay")
+    options = AttackOptions(
+        bag=args.bag,
+        out_dir=out,
+        stack=_stack_spec(args),
+        queries=0,
+        plan_timeout=args.plan_timeout,
+        replay_only=True,
+    )
+    recorded = recorded_score(args.bag)
+    try:
+        result = run_attack(options)
+    except AttackError as error:
+        raise CommandError(str(error)) from error
+    new = (result.summary.get("original") or {}).get("adversarial_loss")
+    print(f"recorded L_adv {recorded}  replayed L_adv {new}")
+    print(f"outputs: {out}/summary.json  {out}/bev.png")
+    if args.check and (recorded is None or new is None or abs(recorded - new) > args.tolerance):
+        print("advsim replay: the replayed score differs from the recorded one", file=sys.stderr)
+        return 3
+    return 0
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    from advsim_ros.io.synthetic import write_synthetic_bag
+
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / "synthetic_log"
+    if not (bag / "metadata.yaml").exists():
+        print(f"demo: synthesizing a street log (seed {args.seed}) into {bag}")
+        write_synthetic_bag(bag, seed=args.seed)
+    options = AttackOptions(
+        bag=bag,
+        out_dir=out / "attack",
+        stack=StackSpec.reference(),
+        algorithm=args.algo,
+        queries=args.queries,
+        seed=args.seed,
+    )
+    print(f"demo: attacking the reference stack on {bag} with {args.algo}, {args.queries} queries")
+    return _attack_and_report(options)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

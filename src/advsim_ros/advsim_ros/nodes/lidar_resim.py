@@ -18,7 +18,7 @@ import numpy as np
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.types import ActorTrack, Sweep
-from advsim_ros.io.bag import ODOMETRY, POINTCLOUD2, _cloud_msg, _matrix
+from advsim_ros.io.bag import ODOMETRY, POINTCLOUD2, cloud_msg, pose_matrix
 from advsim_ros.io.cache import cache_root
 from advsim_ros.io.pointcloud import cloud_to_points
 from advsim_ros.ros import qos, topics
@@ -63,7 +63,7 @@ class LidarResim(GraphNode):
 
     def _on_odometry(self, message: Any) -> None:
         stamp = int(message.header.stamp.sec) * 1_000_000_000 + int(message.header.stamp.nanosec)
-        self.poses[stamp] = _matrix(message.pose.pose.position, message.pose.pose.orientation, "ego odometry")
+        self.poses[stamp] = pose_matrix(message.pose.pose.position, message.pose.pose.orientation, "ego odometry")
         self._process_ready()
 
     def _process_ready(self) -> None:
@@ -90,7 +90,7 @@ class LidarResim(GraphNode):
         rng = np.random.default_rng([self.node_config.seed, located.query_id, located.offset_ns])
         points = self.model.resimulate(logged, self.scenario.actors, world, rng=rng) if moved else logged.points
         out = Sweep(stamp_ns=sim_stamp, frame_id=logged.frame_id, points=points, sensor_pose=logged.sensor_pose)
-        self.publish_sweep(_cloud_msg(self.wire.store, out))
+        self.publish_sweep(cloud_msg(self.wire.store, out))
 
 
 def main() -> None:

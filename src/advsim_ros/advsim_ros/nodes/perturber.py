@@ -15,7 +15,7 @@ import numpy as np
 
 from advsim_ros.core.feasibility import InfeasibleError, PerturberConfig, Window, perturbation_names, select_actors
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.io.bag import _header
+from advsim_ros.io.bag import header_msg
 from advsim_ros.ros import qos, topics
 from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.params import declare_config
@@ -55,7 +55,7 @@ class Perturber(GraphNode):
         stamp = int(scenario.frame_stamps_ns[window.start_frame])
         self.publish_selection(
             self.wire.store.types[ACTOR_SELECTION](
-                header=_header(self.wire.store, stamp, self.frame_id),
+                header=header_msg(self.wire.store, stamp, self.frame_id),
                 scenario_id=scenario.scenario_id,
                 actor_ids=list(self.selection.actor_ids),
                 dimension=self.selection.dimension,

@@ -25,19 +25,29 @@ from advsim_ros.io.bag import (
     ROAD_MAP,
     SCENARIO_INFO,
     TF_MESSAGE,
-    _cloud_msg,
-    _info_msg,
-    _odometry_msgs,
-    _road_map_msg,
-    _sensor_frame,
-    _tf_stamped,
+    cloud_msg,
+    info_msg,
+    odometry_msgs,
+    road_map_msg,
+    sensor_frame_of,
+    tf_stamped,
 )
 from advsim_ros.ros import qos, topics
 from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.params import declare_config
-from advsim_ros.ros.wire import ACTOR_TRACK_ARRAY, EPISODE, PATH, episode_msg, header_stamp_ns, restamp
+from advsim_ros.ros.wire import (
+    ACTOR_TRACK_ARRAY,
+    EPISODE,
+    PATH,
+    PHASE_DECISION,
+    PHASE_DONE,
+    PHASE_REPLAY,
+    PHASE_START,
+    episode_msg,
+    header_stamp_ns,
+    restamp,
+)
 
-PHASE_START, PHASE_REPLAY, PHASE_DECISION, PHASE_DONE = 0, 1, 2, 3
 _GRAPH_POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 
 
@@ -98,7 +108,7 @@ class ScenarioPlayer(GraphNode):
         frames = self.window.frame_indices(scenario.num_frames)
         history = frames[: self.window.history_frames]
         sweeps = {sweep.stamp_ns: sweep for sweep in scenario.sweeps}
-        odometry = _odometry_msgs(store, scenario, bag)
+        odometry = odometry_msgs(store, scenario, bag)
         self.frames: list[_Frame] = []
         for index in history:
             stamp = int(scenario.frame_stamps_ns[index])
@@ -107,7 +117,7 @@ class ScenarioPlayer(GraphNode):
             self.frames.append(
                 _Frame(
                     stamp,
-                    self.wire.encode(_cloud_msg(store, sweeps[stamp])),
+                    self.wire.encode(cloud_msg(store, sweeps[stamp])),
                     self.wire.encode(odometry[index]),
                     scenario.ego.poses[index],
                 )
@@ -121,12 +131,12 @@ class ScenarioPlayer(GraphNode):
         self.publish_odom = self.raw_publisher(ODOMETRY, topics.ODOM, qos.STREAM)
         self.publish_episode = self.raw_publisher(EPISODE, topics.EPISODE, qos.HISTORY)
         first = int(scenario.frame_stamps_ns[frames.start])
-        sensor_frame = _sensor_frame(scenario, bag)
-        static = _tf_stamped(store, first, bag.ego_frame, sensor_frame, scenario.ego_T_sensor)
+        sensor_frame = sensor_frame_of(scenario, bag)
+        static = tf_stamped(store, first, bag.ego_frame, sensor_frame, scenario.ego_T_sensor)
         self.raw_publisher(TF_MESSAGE, topics.TF_STATIC, qos.LATCHED)(store.types[TF_MESSAGE](transforms=[static]))
-        self.raw_publisher(SCENARIO_INFO, topics.SCENARIO_INFO, qos.LATCHED)(_info_msg(store, scenario, bag, ""))
+        self.raw_publisher(SCENARIO_INFO, topics.SCENARIO_INFO, qos.LATCHED)(info_msg(store, scenario, bag, ""))
         if scenario.road_map is not None:
-            road_map = _road_map_msg(store, scenario.road_map, first, bag)
+            road_map = road_map_msg(store, scenario.road_map, first, bag)
             self.raw_publisher(ROAD_MAP, topics.MAP, qos.LATCHED)(road_map)
 
         self.sweeps_seen = _Seen()
@@ -188,7 +198,7 @@ class ScenarioPlayer(GraphNode):
         for index, frame in enumerate(self.frames):
             sim_stamp = self.clock.to_sim(query_id, frame.log_stamp_ns)
             self.publish_clock(self.wire.clock(sim_stamp))
-            ego_tf = _tf_stamped(
+            ego_tf = tf_stamped(
                 self.wire.store, sim_stamp, self.bag_config.world_frame, self.bag_config.ego_frame, frame.ego_pose
             )
             self.publish_tf(self.wire.store.types[TF_MESSAGE](transforms=[ego_tf]))

@@ -22,8 +22,10 @@ from advsim_ros.ros.messages import message_class
 from advsim_ros.ros.wire import (
     ACTOR_SELECTION,
     ACTOR_TRACK_ARRAY,
+    EPISODE,
     PATH,
     PERTURBATION,
+    PHASE_DONE,
     QUERY_SCORE,
     STATUS_OK,
     Wire,
@@ -42,6 +44,7 @@ class Recording:
     scores: dict[int, Any] = field(default_factory=dict)  # query id -> QueryScore
     perturbations: dict[int, Any] = field(default_factory=dict)  # query id -> Perturbation
     selection: Any = None  # ActorSelection
+    episodes: dict[int, Any] = field(default_factory=dict)  # query id -> its Episode DONE
     query_id: int = -1  # the query whose raw messages are below
     sweeps: dict[int, bytes] = field(default_factory=dict)  # sim stamp -> re-simulated PointCloud2
     plans: dict[int, bytes] = field(default_factory=dict)  # header stamp -> Path
@@ -62,6 +65,7 @@ class AttackMonitor:
         self._subscribe(QUERY_SCORE, topics.SCORE, qos.HISTORY, self._on_score)
         self._subscribe(PERTURBATION, topics.PERTURBATION, qos.LATCHED, self._on_perturbation)
         self._subscribe(ACTOR_SELECTION, topics.ACTOR_SELECTION, qos.LATCHED, self._on_selection)
+        self._subscribe(EPISODE, topics.EPISODE, qos.HISTORY, self._on_episode)
         self._subscribe(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks, decode=False)
         self._subscribe(POINTCLOUD2, topics.LIDAR, qos.SENSOR, self._on_sweep, decode=False)
         self._subscribe(PATH, topics.PLAN, qos.STREAM, self._on_plan, decode=False)
@@ -85,6 +89,10 @@ class AttackMonitor:
 
     def _on_perturbation(self, message: Any) -> None:
         self.record.perturbations[int(message.query_id)] = message
+
+    def _on_episode(self, message: Any) -> None:
+        if message.phase == PHASE_DONE:
+            self.record.episodes[int(message.query_id)] = message
 
     def _on_selection(self, message: Any) -> None:
         self.record.selection = message

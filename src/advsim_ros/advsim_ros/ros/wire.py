@@ -17,7 +17,7 @@ from rosbags.typesys.store import Typestore
 
 from advsim_ros.core.feasibility import PerturbedTrajectory
 from advsim_ros.core.types import ActorClass, ActorTrack, Perturbation, Plan, ScenarioError
-from advsim_ros.io.bag import _actor_states, _header, _stamp_ns, _time, scenario_typestore
+from advsim_ros.io.bag import actor_states, header_msg, scenario_typestore, stamp_of, time_msg
 
 PERTURBATION = "advsim_msgs/msg/Perturbation"
 ACTOR_TRACK_ARRAY = "advsim_msgs/msg/ActorTrackArray"
@@ -26,6 +26,9 @@ QUERY_SCORE = "advsim_msgs/msg/QueryScore"
 EPISODE = "advsim_msgs/msg/Episode"
 PATH = "nav_msgs/msg/Path"
 CLOCK = "rosgraph_msgs/msg/Clock"
+
+# advsim_msgs/Episode phases
+PHASE_START, PHASE_REPLAY, PHASE_DECISION, PHASE_DONE = 0, 1, 2, 3
 
 # advsim_msgs/QueryScore status values
 STATUS_OK = 0
@@ -65,7 +68,7 @@ class Wire:
         return self.store.deserialize_cdr(raw, type_name)
 
     def clock(self, stamp_ns: int) -> bytes:
-        return self.encode(self.store.types[CLOCK](clock=_time(self.store, stamp_ns)))
+        return self.encode(self.store.types[CLOCK](clock=time_msg(self.store, stamp_ns)))
 
 
 def header_stamp_ns(raw: bytes) -> int:
@@ -115,7 +118,7 @@ def trajectory_track_msg(wire: Wire, trajectory: PerturbedTrajectory) -> Any:
     types = wire.store.types
     states = [
         types["advsim_msgs/msg/ActorState"](
-            stamp=_time(wire.store, stamp),
+            stamp=time_msg(wire.store, stamp),
             x=float(trajectory.x[i]),
             y=float(trajectory.y[i]),
             z=float(trajectory.z[i]),
@@ -147,13 +150,13 @@ def logged_track_msg(wire: Wire, track: ActorTrack) -> Any:
         width=track.width,
         height=track.height,
         confidence=1.0,
-        states=_actor_states(wire.store, track),
+        states=actor_states(wire.store, track),
     )
 
 
 def track_array_msg(wire: Wire, query_id: int, stamp_ns: int, frame_id: str, tracks: Sequence[Any]) -> Any:
     return wire.store.types[ACTOR_TRACK_ARRAY](
-        header=_header(wire.store, stamp_ns, frame_id), query_id=int(query_id), tracks=list(tracks)
+        header=header_msg(wire.store, stamp_ns, frame_id), query_id=int(query_id), tracks=list(tracks)
     )
 
 
@@ -172,7 +175,7 @@ def tracks_from_msg(message: Any) -> tuple[ActorTrack, ...]:
                 actor_id=str(track.actor_id),
                 actor_class=actor_class,
                 size=np.array([track.length, track.width, track.height]),
-                stamps_ns=np.array([_stamp_ns(state.stamp) for state in track.states], dtype=np.int64),
+                stamps_ns=np.array([stamp_of(state.stamp) for state in track.states], dtype=np.int64),
                 centers=np.array([[state.x, state.y, state.z] for state in track.states]),
                 yaws=np.array([state.yaw for state in track.states]),
             )
@@ -206,8 +209,8 @@ def plan_from_path(message: Any, time_offset_ns: int = 0) -> Plan:
     poses = message.poses
     if not poses:
         raise WireError("the plan (nav_msgs/Path) has no poses")
-    header_ns = _stamp_ns(message.header.stamp)
-    stamps = np.array([_stamp_ns(pose.header.stamp) for pose in poses], dtype=np.int64)
+    header_ns = stamp_of(message.header.stamp)
+    stamps = np.array([stamp_of(pose.header.stamp) for pose in poses], dtype=np.int64)
     if np.all(stamps == 0):
         stamps = header_ns + 100_000_000 * np.arange(1, len(poses) + 1, dtype=np.int64)
     xy = np.array([[pose.pose.position.x, pose.pose.position.y] for pose in poses], dtype=np.float64)
@@ -234,11 +237,11 @@ def path_msg(wire: Wire, plan: Plan, header_stamp_ns: int, frame_id: str) -> Any
         position = types["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0)
         poses.append(
             types["geometry_msgs/msg/PoseStamped"](
-                header=_header(wire.store, stamp, frame_id),
+                header=header_msg(wire.store, stamp, frame_id),
                 pose=types["geometry_msgs/msg/Pose"](position=position, orientation=orientation),
             )
         )
-    return types[PATH](header=_header(wire.store, header_stamp_ns, frame_id), poses=poses)
+    return types[PATH](header=header_msg(wire.store, header_stamp_ns, frame_id), poses=poses)
 
 
 # ----------------------------------------------------------------------------- episodes
@@ -259,8 +262,8 @@ def episode_msg(
         phase=int(phase),
         frame_index=int(frame_index),
         num_frames=int(num_frames),
-        segment_start=_time(wire.store, segment[0]),
-        segment_end=_time(wire.store, segment[1]),
+        segment_start=time_msg(wire.store, segment[0]),
+        segment_end=time_msg(wire.store, segment[1]),
         sweeps_delivered=int(sweeps_delivered),
         plans_received=int(plans_received),
     )

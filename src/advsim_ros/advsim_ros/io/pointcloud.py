@@ -1,0 +1,225 @@
+"""PointCloud2 <-> structured numpy arrays, for any field layout.
+
+Duck-typed on the attributes of sensor_msgs/msg/PointCloud2 (height, width, fields,
+is_bigendian, point_step, row_step, data) and PointField (name, offset, datatype,
+count), so the same code serves rosbags messages and rclpy messages. The structured
+array keeps the source layout byte for byte: field offsets, padding and point_step
+survive, so intensity, ring, time or any other field round-trips unchanged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from advsim_ros.core.types import POINT_XYZ_FIELDS, ScenarioError
+
+
+class PointCloudError(ScenarioError):
+    """A PointCloud2 whose layout or data cannot be read; the message names the problem."""
+
+
+# sensor_msgs/msg/PointField datatype constants and their numpy equivalents.
+INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
+_DATATYPE_TO_NUMPY: dict[int, str] = {
+    INT8: "i1",
+    UINT8: "u1",
+    INT16: "i2",
+    UINT16: "u2",
+    INT32: "i4",
+    UINT32: "u4",
+    FLOAT32: "f4",
+    FLOAT64: "f8",
+}
+_NUMPY_TO_DATATYPE: dict[tuple[str, int], int] = {
+    ("i", 1): INT8,
+    ("u", 1): UINT8,
+    ("i", 2): INT16,
+    ("u", 2): UINT16,
+    ("i", 4): INT32,
+    ("u", 4): UINT32,
+    ("f", 4): FLOAT32,
+    ("f", 8): FLOAT64,
+}
+
+
+class PointFieldLike(Protocol):
+    """What we read from a sensor_msgs/msg/PointField (rosbags or rclpy)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def offset(self) -> int: ...
+    @property
+    def datatype(self) -> int: ...
+    @property
+    def count(self) -> int: ...
+
+
+class PointCloud2Like(Protocol):
+    """What we read from a sensor_msgs/msg/PointCloud2 (rosbags or rclpy)."""
+
+    @property
+    def height(self) -> int: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def fields(self) -> Sequence[PointFieldLike]: ...
+    @property
+    def is_bigendian(self) -> bool: ...
+    @property
+    def point_step(self) -> int: ...
+    @property
+    def row_step(self) -> int: ...
+    @property
+    def data(self) -> object: ...  # bytes, array.array('B') or a uint8 numpy array
+
+
+@dataclass(frozen=True)
+class PointFieldSpec:
+    """One sensor_msgs/msg/PointField, independent of any ROS message class."""
+
+    name: str
+    offset: int  # byte offset of the field inside one point [bytes]
+    datatype: int  # PointField datatype constant (INT8 .. FLOAT64)
+    count: int  # number of consecutive elements of this datatype
+
+
+def pointfields_to_dtype(fields: Sequence[PointFieldLike], point_step: int, is_bigendian: bool) -> np.dtype:
+    """The structured dtype (itemsize = point_step) that one point of this layout has.
+
+    Raises PointCloudError for unknown datatypes, duplicate or empty names, and fields
+    that overlap each other or run past point_step.
+    """
+    if point_step <= 0:
+        raise PointCloudError(f"PointCloud2: point_step must be positive, got {point_step}")
+    byte_order = ">" if is_bigendian else "<"
+    names: list[str] = []
+    formats: list[str | tuple[str, tuple[int]]] = []
+    offsets: list[int] = []
+    occupied: list[tuple[int, int, str]] = []
+    for field in fields:
+        name, offset, datatype, count = str(field.name), int(field.offset), int(field.datatype), int(field.count)
+        if count == 0:
+            continue  # a zero-count field holds no data (seen in some drivers' padding entries)
+        if not name:
+            raise PointCloudError("PointCloud2: a field has an empty name")
+        if name in names:
+            raise PointCloudError(f"PointCloud2: field {name!r} appears twice")
+        if datatype not in _DATATYPE_TO_NUMPY:
+            raise PointCloudError(f"PointCloud2: field {name!r} has unknown datatype {datatype}")
+        if count < 0 or offset < 0:
+            raise PointCloudError(f"PointCloud2: field {name!r} has negative offset or count")
+        base = np.dtype(byte_order + _DATATYPE_TO_NUMPY[datatype])
+        end = offset + base.itemsize * count
+        if end > point_step:
+            raise PointCloudError(
+                f"PointCloud2: field {name!r} (bytes {offset}..{end}) runs past point_step {point_step}"
+            )
+        for other_start, other_end, other_name in occupied:
+            if offset < other_end and other_start < end:
+                raise PointCloudError(f"PointCloud2: fields {other_name!r} and {name!r} overlap")
+        occupied.append((offset, end, name))
+        names.append(name)
+        formats.append(base.str if count == 1 else (base.str, (count,)))
+        offsets.append(offset)
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+
+
+def _data_bytes(data: object) -> memoryview:
+    if isinstance(data, np.ndarray):
+        return memoryview(np.ascontiguousarray(data, dtype=np.uint8).tobytes())
+    if isinstance(data, bytes | bytearray | memoryview):
+        return memoryview(data).cast("B")
+    return memoryview(bytes(data))  # type: ignore[call-overload]  # array.array('B') from rclpy
+
+
+def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
+    """The cloud's points as a 1-D structured array (height x width points, row-major).
+
+    Every field of the source is kept with its datatype and offset; x, y and z are
+    required (any numeric datatype). Raises PointCloudError naming the problem.
+    """
+    dtype = pointfields_to_dtype(msg.fields, int(msg.point_step), bool(msg.is_bigendian))
+    names = dtype.names or ()
+    missing = [name for name in POINT_XYZ_FIELDS if name not in names]
+    if missing:
+        raise PointCloudError(f"PointCloud2 without {', '.join(missing)} field(s): has fields {list(names)}")
+    height, width, point_step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
+    if height < 0 or width < 0:
+        raise PointCloudError(f"PointCloud2: negative size {height} x {width}")
+    if height * width == 0:
+        return np.zeros(0, dtype=dtype)
+    if row_step < width * point_step:
+        raise PointCloudError(f"PointCloud2: row_step {row_step} is less than width {width} x point_step {point_step}")
+    data = _data_bytes(msg.data)
+    needed = row_step * (height - 1) + width * point_step
+    if len(data) < needed:
+        raise PointCloudError(
+            f"PointCloud2: data has {len(data)} bytes, {height} x {width} points need at least {needed}"
+        )
+    raw = np.frombuffer(data, dtype=np.uint8, count=needed)
+    if row_step != width * point_step:  # rows padded beyond width * point_step: gather the rows
+        raw = np.lib.stride_tricks.as_strided(raw, shape=(height, width * point_step), strides=(row_step, 1))
+    # Copy through bytes so that padding between fields survives (a structured .copy() leaves it undefined).
+    return np.frombuffer(bytearray(raw.tobytes()), dtype=dtype)
+
+
+def points_to_cloud_fields(points: np.ndarray) -> tuple[tuple[PointFieldSpec, ...], int]:
+    """The PointField list and point_step that describe ``points.tobytes()`` exactly.
+
+    Raises PointCloudError for arrays without x, y, z and for field types PointCloud2
+    cannot carry (e.g. float16, int64, nested records); convert those first.
+    """
+    dtype = points.dtype
+    names = dtype.names or ()
+    missing = [name for name in POINT_XYZ_FIELDS if name not in names]
+    if missing:
+        raise PointCloudError(f"points without {', '.join(missing)} field(s): has fields {list(names)}")
+    points_are_bigendian(points)  # rejects mixed byte orders
+    specs: list[PointFieldSpec] = []
+    assert dtype.fields is not None
+    for name in names:
+        field_dtype, offset = dtype.fields[name][0], int(dtype.fields[name][1])
+        base, shape = field_dtype.base, field_dtype.shape
+        if len(shape) > 1:
+            raise PointCloudError(f"points field {name!r}: multi-dimensional sub-arrays are not supported")
+        key = (base.kind, base.itemsize)
+        if key not in _NUMPY_TO_DATATYPE:
+            raise PointCloudError(f"points field {name!r}: dtype {base} has no PointField datatype")
+        count = int(shape[0]) if shape else 1
+        specs.append(PointFieldSpec(name=name, offset=offset, datatype=_NUMPY_TO_DATATYPE[key], count=count))
+    return tuple(specs), int(dtype.itemsize)
+
+
+def points_are_bigendian(points: np.ndarray) -> bool:
+    """The is_bigendian flag for ``points.tobytes()``; raises PointCloudError when fields mix byte orders."""
+    dtype = points.dtype
+    fields: dict[str, tuple[np.dtype, int]] = dict(dtype.fields or {})  # type: ignore[arg-type]
+    native = "<" if np.little_endian else ">"
+    orders = {
+        native if fields[name][0].base.byteorder == "=" else fields[name][0].base.byteorder
+        for name in dtype.names or ()
+        if fields[name][0].base.itemsize > 1
+    }
+    if len(orders) > 1:
+        raise PointCloudError("points: fields mix byte orders; PointCloud2 has one is_bigendian flag")
+    return orders == {">"}
+
+
+def xyz_points(xyz: np.ndarray, intensity: np.ndarray | None = None) -> np.ndarray:
+    """A float32 x, y, z (, intensity) structured array from an (N, 3) array [m] (and (N,) intensities)."""
+    xyz = np.asarray(xyz)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise PointCloudError(f"xyz_points: expected an (N, 3) array, got shape {xyz.shape}")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if intensity is not None:
+        fields.append(("intensity", "<f4"))
+    points = np.empty(xyz.shape[0], dtype=fields)
+    points["x"], points["y"], points["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    if intensity is not None:
+        points["intensity"] = np.asarray(intensity).reshape(-1)
+    return points
