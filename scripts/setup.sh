@@ -22,6 +22,11 @@ pip_install() { "$VENV/bin/python" -m pip install -q --disable-pip-version-check
 stamp_ok() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
 stamp_set() { mkdir -p "$STAMPS" && echo "$2" > "$STAMPS/$1"; }
 
+# One set-up at a time (two shells, or a test and a developer, may both run make).
+mkdir -p "$ROOT/build"
+exec 9>"$ROOT/build/.setup.lock"
+flock 9
+
 "$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
   || fail "the ROS 2 Jazzy wheels need CPython 3.11; $PYTHON is $("$PYTHON" --version 2>&1)"
 
@@ -44,35 +49,41 @@ if ! stamp_ok requirements "$req_hash"; then
   # torch first and alone, so that nothing can pull a CUDA build in its place.
   pip_install "$(grep '^torch==' requirements/base.txt)"
   pip_install -r requirements/base.txt -r requirements/dev.txt
-  rm -f "$STAMPS/msgs" "$STAMPS/package"
+  rm -f "$STAMPS"/msgs-* "$STAMPS/package"
   stamp_set requirements "$req_hash"
 fi
 
-# 3. advsim_msgs: rosidl interface package built with the wheels' ament_cmake into the venv prefix.
-msgs_hash=$(hash_of msg_defs/advsim_msgs/CMakeLists.txt msg_defs/advsim_msgs/package.xml msg_defs/advsim_msgs/msg/*.msg scripts/setup.sh)
-if ! stamp_ok msgs "$msgs_hash"; then
-  log "building advsim_msgs (rosidl) into .venv"
+# 3. Interface packages built with rosidl from the wheels into the venv prefix: advsim_msgs, and
+#    tf2_msgs (/tf's TFMessage), which the wheels lack.
+build_interfaces() {
+  local pkg=$1 pkg_hash
+  pkg_hash=$(hash_of msg_defs/"$pkg"/CMakeLists.txt msg_defs/"$pkg"/package.xml msg_defs/"$pkg"/msg/*.msg scripts/setup.sh)
+  stamp_ok "msgs-$pkg" "$pkg_hash" && return 0
+  log "building $pkg (rosidl) into .venv"
   # The message wheels' exported CMake targets name the include folders of the machine that built them;
   # point them at this interpreter's and this venv's numpy.
+  local py_include np_include
   py_include=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
   np_include=$("$VENV/bin/python" -c 'import numpy; print(numpy.get_include())')
   { grep -rlE '/opt/python/cp311-cp311' "$VENV/share" --include='*.cmake' || true; } | while read -r f; do
     sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_include#g" \
            -e "s#/opt/python/cp311-cp311/include/python3.11#$py_include#g" "$f"
   done
-  rm -rf "$ROOT/build/advsim_msgs" && mkdir -p "$ROOT/build"
-  cmake -S msg_defs/advsim_msgs -B build/advsim_msgs -G "Unix Makefiles" \
+  rm -rf "$ROOT/build/$pkg" && mkdir -p "$ROOT/build"
+  local log_file="$ROOT/build/$pkg.log"
+  cmake -S msg_defs/"$pkg" -B build/"$pkg" -G "Unix Makefiles" \
     -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_PREFIX_PATH="$VENV" \
     -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release \
-    > build/advsim_msgs.log 2>&1 || { mkdir -p build; tail -40 build/advsim_msgs.log >&2; fail "cmake configure of advsim_msgs failed (log: build/advsim_msgs.log)"; }
-  cmake --build build/advsim_msgs -j2 >> build/advsim_msgs.log 2>&1 \
-    || { tail -40 build/advsim_msgs.log >&2; fail "build of advsim_msgs failed (log: build/advsim_msgs.log)"; }
-  cmake --install build/advsim_msgs >> build/advsim_msgs.log 2>&1 \
-    || { tail -40 build/advsim_msgs.log >&2; fail "install of advsim_msgs failed (log: build/advsim_msgs.log)"; }
-  "$VENV/bin/python" -c 'from advsim_msgs.msg import QueryScore; QueryScore()' \
-    || fail "advsim_msgs was built but does not import from the venv"
-  stamp_set msgs "$msgs_hash"
-fi
+    > "$log_file" 2>&1 || { tail -40 "$log_file" >&2; fail "cmake configure of $pkg failed (log: $log_file)"; }
+  cmake --build build/"$pkg" -j2 >> "$log_file" 2>&1 \
+    || { tail -40 "$log_file" >&2; fail "build of $pkg failed (log: $log_file)"; }
+  cmake --install build/"$pkg" >> "$log_file" 2>&1 \
+    || { tail -40 "$log_file" >&2; fail "install of $pkg failed (log: $log_file)"; }
+  "$VENV/bin/python" -c "import $pkg.msg" || fail "$pkg was built but does not import from the venv"
+  stamp_set "msgs-$pkg" "$pkg_hash"
+}
+build_interfaces advsim_msgs
+build_interfaces tf2_msgs
 
 # 4. advsim_ros, editable: code changes need no reinstall; entry points change with setup.py.
 pkg_hash=$(hash_of src/advsim_ros/setup.py src/advsim_ros/setup.cfg src/advsim_ros/package.xml)

@@ -1,0 +1,136 @@
+"""scorer: scores the stack's plan of each query with the adversarial objective and the planning metrics.
+
+When the player reports a query DONE it takes the plan stamped with the query's decision frame
+(the last sweep the stack saw), moves it from sim time back to log time through the shared
+episode clock, and scores it against the human (logged ego) trajectory and the actors' futures —
+the perturbed ones from the perturber, the others as logged (core.objective, core.metrics). No
+plan: `stack_error` if nobody publishes the plan topic any more (the stack is gone), else
+`stack_timeout`; a plan that cannot be read (empty, NaN): `stack_error`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from rclpy.callback_groups import ReentrantCallbackGroup
+
+from advsim_ros.core.objective import ObjectiveConfig, PlanScore, score_plan
+from advsim_ros.core.types import ActorTrack, ScenarioError
+from advsim_ros.ros import qos, topics
+from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.ros.messages import message_class
+from advsim_ros.ros.params import declare_config
+from advsim_ros.ros.wire import (
+    ACTOR_TRACK_ARRAY,
+    EPISODE,
+    PATH,
+    PHASE_DONE,
+    PHASE_START,
+    QUERY_SCORE,
+    STATUS_OK,
+    STATUS_STACK_ERROR,
+    STATUS_STACK_TIMEOUT,
+    WireError,
+    failed_score_msg,
+    header_stamp_ns,
+    plan_from_path,
+    tracks_from_msg,
+)
+
+
+@dataclass(frozen=True)
+class ScorerNodeConfig:
+    """/scorer parameters besides the objective's own (params/scorer.yaml)."""
+
+    plan_grace: float = 2.0  # wait this long after DONE for a plan still on its way [s, wall clock]
+    plans_kept: int = 200  # plans remembered by stamp (bounds memory) [messages]
+
+    def __post_init__(self) -> None:
+        if self.plan_grace < 0.0 or self.plans_kept < 1:
+            raise ScenarioError("/scorer: plan_grace must be >= 0 and plans_kept >= 1")
+
+
+class Scorer(GraphNode):
+    def __init__(self) -> None:
+        super().__init__("scorer")
+        self.config = declare_config(self, ScorerNodeConfig)
+        self.objective = declare_config(self, ObjectiveConfig, "objective.")
+        self.scenario, self.clock = self.load_scenario(load_sweeps=False)
+        frames = self.window.frame_indices(self.scenario.num_frames)
+        self.decision_log_ns = int(self.scenario.frame_stamps_ns[frames.start + self.window.decision_index])
+        self.publish_score = self.raw_publisher(QUERY_SCORE, topics.SCORE, qos.HISTORY)
+        self._plans: dict[int, bytes] = {}
+        self._tracks: dict[int, tuple[ActorTrack, ...]] = {}
+        self._started: dict[int, float] = {}
+        self._condition = threading.Condition()
+        plans_group = ReentrantCallbackGroup()  # plans keep arriving while a DONE callback waits for one
+        self.create_subscription(
+            message_class(PATH), topics.PLAN, self._on_plan, qos.STREAM, raw=True, callback_group=plans_group
+        )
+        self.raw_subscription(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks)
+        self.raw_subscription(EPISODE, topics.EPISODE, qos.HISTORY, self._on_episode)
+        self.get_logger().info(f"ready: scoring plans from log time {self.decision_log_ns} ns")
+
+    def _on_plan(self, raw: bytes) -> None:
+        with self._condition:
+            self._plans[header_stamp_ns(raw)] = raw
+            while len(self._plans) > self.config.plans_kept:
+                del self._plans[min(self._plans)]
+            self._condition.notify_all()
+
+    def _on_tracks(self, message: Any) -> None:
+        self._tracks[int(message.query_id)] = tracks_from_msg(message)
+
+    def _on_episode(self, message: Any) -> None:
+        query_id = int(message.query_id)
+        if message.phase == PHASE_START:
+            self._started[query_id] = time.monotonic()
+        elif message.phase == PHASE_DONE:
+            self.publish_score(self._score(query_id))
+
+    def _score(self, query_id: int) -> Any:
+        wall_time = time.monotonic() - self._started.pop(query_id, time.monotonic())
+        decision_sim = self.clock.to_sim(query_id, self.decision_log_ns)
+        with self._condition:
+            self._condition.wait_for(lambda: decision_sim in self._plans, self.config.plan_grace)
+            raw = self._plans.pop(decision_sim, None)
+        if raw is None:
+            if self.count_publishers(topics.PLAN) == 0:
+                reason = f"the stack is not running: nobody publishes {topics.PLAN}"
+                return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, reason, wall_time)
+            reason = f"no plan for the decision frame (sim stamp {decision_sim} ns) before the timeout"
+            return failed_score_msg(self.wire, query_id, STATUS_STACK_TIMEOUT, reason, wall_time)
+        try:
+            plan = plan_from_path(self.wire.decode(raw, PATH), decision_sim - self.decision_log_ns)
+        except (WireError, ScenarioError) as error:
+            return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, f"unusable plan: {error}", wall_time)
+        moved = {track.actor_id: track for track in self._tracks.pop(query_id, ())}
+        actors = tuple(moved.get(actor.actor_id, actor) for actor in self.scenario.actors)
+        result: PlanScore = score_plan(self.scenario, actors, plan, self.decision_log_ns, self.objective)
+        return self.wire.store.types[QUERY_SCORE](
+            query_id=query_id,
+            status=STATUS_OK,
+            message="",
+            adversarial_loss=result.adversarial_loss,
+            imitation_loss=result.imitation_loss,
+            collision_loss=result.collision_loss,
+            comfort_loss=result.comfort_loss,
+            collision_3s=result.collision_3s,
+            collision_5s=result.collision_5s,
+            l2_human_3s=result.l2_human_3s,
+            l2_human_5s=result.l2_human_5s,
+            lateral_acceleration=result.lateral_acceleration,
+            jerk=result.jerk,
+            wall_time=wall_time,
+        )
+
+
+def main() -> None:
+    run_node(Scorer, threads=3)
+
+
+if __name__ == "__main__":
+    main()
