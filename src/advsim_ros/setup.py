@@ -7,12 +7,21 @@ from setuptools import find_packages, setup
 PACKAGE = "advsim_ros"
 
 # One console script per node (ros2 run advsim_ros <name>), plus the `advsim` command.
-NODES: dict[str, str] = {}
+NODES: dict[str, str] = {
+    "scenario_player": "advsim_ros.nodes.scenario_player:main",
+    "perturber": "advsim_ros.nodes.perturber:main",
+    "lidar_resim": "advsim_ros.nodes.lidar_resim:main",
+    "scorer": "advsim_ros.nodes.scorer:main",
+    "search": "advsim_ros.nodes.search:main",
+    "modular_stack": "advsim_ros.stacks.modular.node:main",
+    "learned_stack": "advsim_ros.stacks.learned.node:main",
+}
 
 setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    package_data={"advsim_ros.ros": ["*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -213,7 +213,7 @@ def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None
     started = time.monotonic()
     with reserve_domain_id() as domain_id:
         env = graph_environment(domain_id)
-        os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION")})
+        os.environ.update(graph_overrides(domain_id))  # the monitor in this process joins the same graph
         with Launcher(env, run_dir / "logs") as launcher, AttackMonitor(options.replay_only) as monitor:
             launcher.start(stack)
             for spec in graph:

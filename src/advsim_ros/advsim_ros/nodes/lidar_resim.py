@@ -44,7 +44,7 @@ class LidarResim(GraphNode):
         cache = Path(self.node_config.cache_dir) if self.node_config.cache_dir else cache_root() / "resim"
         self.get_logger().info(f"loading or building the re-simulation model (cache {cache})")
         self.model = ResimModel.build(self.scenario, cache_dir=cache, config=resim_config)
-        self.publish_sweep = self.raw_publisher(POINTCLOUD2, topics.LIDAR, qos.SENSOR)
+        self.publish_sweep = self.raw_publisher(POINTCLOUD2, topics.LIDAR, qos.LIDAR_OUT)
         self.perturbed: dict[int, tuple[ActorTrack, ...]] = {}
         self.clouds: dict[int, bytes] = {}  # sim stamp -> logged sweep waiting for its pose or tracks
         self.poses: dict[int, Any] = {}  # sim stamp -> T_world_ego

@@ -57,12 +57,12 @@ class PlayerConfig:
 
     plan_timeout: float = 10.0  # longest wait for the stack's plan of one frame [s, wall clock]
     sweep_timeout: float = 30.0  # longest wait for the re-simulated sweep of one frame [s, wall clock]
-    stack_ready_timeout: float = 60.0  # longest wait, per query, for the stack to subscribe and advertise [s]
+    ready_timeout: float = 600.0  # longest wait, per query, for the stack and lidar_resim to be up [s]
     wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
     publish_lidar_directly: bool = False  # replay the bag's sweeps straight to the LiDAR topic (no lidar_resim)
 
     def __post_init__(self) -> None:
-        for name in ("plan_timeout", "sweep_timeout", "stack_ready_timeout"):
+        for name in ("plan_timeout", "sweep_timeout", "ready_timeout"):
             if not getattr(self, name) > 0.0:
                 raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
 
@@ -124,7 +124,7 @@ class ScenarioPlayer(GraphNode):
             )
         lidar_topic = topics.LIDAR if self.config.publish_lidar_directly else topics.ORIGINAL_POINTS
         self.publish_cloud = self.raw_publisher(
-            POINTCLOUD2, lidar_topic, qos.SENSOR if self.config.publish_lidar_directly else qos.STREAM
+            POINTCLOUD2, lidar_topic, qos.LIDAR_OUT if self.config.publish_lidar_directly else qos.STREAM
         )
         self.publish_clock = self.raw_publisher(CLOCK, topics.CLOCK, qos.CLOCK)
         self.publish_tf = self.raw_publisher(TF_MESSAGE, topics.TF, qos.STREAM)
@@ -142,7 +142,7 @@ class ScenarioPlayer(GraphNode):
         self.sweeps_seen = _Seen()
         self.plans_seen = _Seen()
         self.queries: queue.Queue[int] = queue.Queue()
-        self.raw_subscription(POINTCLOUD2, topics.LIDAR, qos.SENSOR, self._on_sweep, decode=False)
+        self.raw_subscription(POINTCLOUD2, topics.LIDAR, qos.LIDAR_OUT, self._on_sweep, decode=False)
         self.raw_subscription(PATH, topics.PLAN, qos.STREAM, self._on_plan, decode=False)
         self.raw_subscription(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks)
         self._stop = threading.Event()
@@ -171,9 +171,14 @@ class ScenarioPlayer(GraphNode):
     def _stack_gone(self) -> bool:
         return self._stop.is_set() or self.count_publishers(topics.PLAN) == 0
 
-    def _stack_ready(self) -> bool:
+    def _graph_ready(self) -> bool:
+        """The stack listens and answers, and (unless we feed the LiDAR ourselves) lidar_resim is up."""
         # our own LiDAR subscription counts too: the stack makes it two
-        return self.count_subscribers(topics.LIDAR) >= 2 and self.count_publishers(topics.PLAN) >= 1
+        stack = self.count_subscribers(topics.LIDAR) >= 2 and self.count_publishers(topics.PLAN) >= 1
+        resim = self.config.publish_lidar_directly or (
+            self.count_subscribers(topics.ORIGINAL_POINTS) >= 1 and self.count_publishers(topics.LIDAR) >= 1
+        )
+        return stack and resim
 
     def _drive(self) -> None:
         done: set[int] = set()
@@ -184,13 +189,18 @@ class ScenarioPlayer(GraphNode):
             if query_id in done:  # a late joiner's copy of the latched tracks
                 continue
             done.add(query_id)
-            self._replay(query_id)
+            try:
+                self._replay(query_id)
+            except Exception:  # noqa: BLE001 - publishing fails once the node shuts down under us
+                if self._stop.is_set():
+                    return
+                raise
 
     def _replay(self, query_id: int) -> None:
         segment = self.clock.segment(query_id)
         count = len(self.frames)
-        deadline = time.monotonic() + self.config.stack_ready_timeout
-        while not self._stack_ready() and time.monotonic() < deadline and not self._stop.is_set():
+        deadline = time.monotonic() + self.config.ready_timeout
+        while not self._graph_ready() and time.monotonic() < deadline and not self._stop.is_set():
             self._stop.wait(_GRAPH_POLL)
         self.publish_episode(episode_msg(self.wire, query_id, PHASE_START, 0, count, segment))
         delivered = received = 0

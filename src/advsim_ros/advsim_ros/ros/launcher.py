@@ -23,6 +23,7 @@ from typing import IO
 # Fast DDS accepts domain ids 0..232; the low ones are left to the user's own graphs.
 _DOMAIN_IDS = range(100, 230)
 _LOCK_DIR = Path(tempfile.gettempdir()) / "advsim_ros_domains"
+FASTDDS_PROFILES = Path(__file__).resolve().parent / "fastdds_large_data.xml"
 
 
 class LaunchError(RuntimeError):
@@ -84,17 +85,22 @@ def reserve_domain_id() -> Iterator[int]:
     raise LaunchError(f"no free ROS_DOMAIN_ID in {_DOMAIN_IDS.start}..{_DOMAIN_IDS.stop - 1}")
 
 
+def graph_overrides(domain_id: int) -> dict[str, str]:
+    """Environment variables that put a process on one isolated graph: own domain, loopback discovery."""
+    return {
+        "ROS_DOMAIN_ID": str(domain_id),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
+        # shared memory with large segments for data: LiDAR sweeps are not fragmented over UDP
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES),
+        "PYTHONUNBUFFERED": "1",
+    }
+
+
 def graph_environment(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Environment for every process of one isolated graph: own domain, loopback discovery, Fast DDS."""
+    """Environment for every process of one isolated graph (`base`, default os.environ, plus the overrides)."""
     env = dict(os.environ if base is None else base)
-    env.update(
-        {
-            "ROS_DOMAIN_ID": str(domain_id),
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-            "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
-            "PYTHONUNBUFFERED": "1",
-        }
-    )
+    env.update(graph_overrides(domain_id))
     env.pop("ROS_STATIC_PEERS", None)
     return env
 

@@ -67,7 +67,7 @@ class AttackMonitor:
         self._subscribe(ACTOR_SELECTION, topics.ACTOR_SELECTION, qos.LATCHED, self._on_selection)
         self._subscribe(EPISODE, topics.EPISODE, qos.HISTORY, self._on_episode)
         self._subscribe(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks, decode=False)
-        self._subscribe(POINTCLOUD2, topics.LIDAR, qos.SENSOR, self._on_sweep, decode=False)
+        self._subscribe(POINTCLOUD2, topics.LIDAR, qos.LIDAR_OUT, self._on_sweep, decode=False)
         self._subscribe(PATH, topics.PLAN, qos.STREAM, self._on_plan, decode=False)
         return self
 

@@ -11,6 +11,13 @@ from rclpy.qos import (
 # LiDAR as drivers publish it: best effort, volatile, shallow queue. A reliable subscriber would not match.
 SENSOR = qos_profile_sensor_data
 
+# The re-simulated LiDAR as lidar_resim offers it: reliable, volatile, shallow. A reliable offer matches
+# both sensor-data (best-effort) subscribers, which is what stacks use, and reliable ones (the player's
+# lock-step check, the recorder), so nothing the graph itself counts is lost to best-effort delivery.
+LIDAR_OUT = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
+)
+
 # Per-frame data every participant must see (odometry, plans, detections, logged sweeps for re-simulation).
 STREAM = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
