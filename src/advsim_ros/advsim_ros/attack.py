@@ -33,6 +33,7 @@ from advsim_ros.ros.launcher import (
     Launcher,
     NodeSpec,
     graph_environment,
+    graph_overrides,
     python_module_command,
     reserve_domain_id,
 )

@@ -191,7 +191,7 @@ class ScenarioPlayer(GraphNode):
             done.add(query_id)
             try:
                 self._replay(query_id)
-            except Exception:  # noqa: BLE001 - publishing fails once the node shuts down under us
+            except Exception:
                 if self._stop.is_set():
                     return
                 raise

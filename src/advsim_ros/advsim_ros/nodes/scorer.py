@@ -15,14 +15,17 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from advsim_ros.core.objective import ObjectiveConfig, PlanScore, score_plan
-from advsim_ros.core.types import ActorTrack, ScenarioError
+from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
+from advsim_ros.core.metrics import MetricsConfig, actor_futures_at, query_metrics
+from advsim_ros.core.objective import ObjectiveConfig, evaluate_objective, scorer_settings_from_params
+from advsim_ros.core.types import ActorTrack, Plan, ScenarioError
 from advsim_ros.ros import qos, topics
 from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.messages import message_class
-from advsim_ros.ros.params import declare_config
+from advsim_ros.ros.params import declare_config, declare_parameters
 from advsim_ros.ros.wire import (
     ACTOR_TRACK_ARRAY,
     EPISODE,
@@ -57,10 +60,20 @@ class Scorer(GraphNode):
     def __init__(self) -> None:
         super().__init__("scorer")
         self.config = declare_config(self, ScorerNodeConfig)
-        self.objective = declare_config(self, ObjectiveConfig, "objective.")
-        self.scenario, self.clock = self.load_scenario(load_sweeps=False)
+        objective = declare_parameters(self, ObjectiveConfig, "objective.")
+        preset = self.declare_parameter("objective.preset", "").value  # M0..M5 or a baseline; "" = as given
+        if preset:
+            objective["preset"] = preset
+        metrics = declare_parameters(self, MetricsConfig, "metrics.")
+        self.settings = scorer_settings_from_params({"objective": objective, "metrics": metrics}, "/scorer")
+        # sweeps: logs without a map get their drivable area estimated from the LiDAR ground
+        self.scenario, self.clock = self.load_scenario(load_sweeps=True)
+        self.drivable = drivable_area_for(self.scenario, DrivableConfig(), self.settings.objective.ego_forward_offset)
         frames = self.window.frame_indices(self.scenario.num_frames)
-        self.decision_log_ns = int(self.scenario.frame_stamps_ns[frames.start + self.window.decision_index])
+        decision = frames.start + self.window.decision_index
+        self.decision_log_ns = int(self.scenario.frame_stamps_ns[decision])
+        self.decision_xy = self.scenario.ego.xy[decision]
+        self.decision_yaw = float(self.scenario.ego.yaws[decision])
         self.publish_score = self.raw_publisher(QUERY_SCORE, topics.SCORE, qos.HISTORY)
         self._plans: dict[int, bytes] = {}
         self._tracks: dict[int, tuple[ActorTrack, ...]] = {}
@@ -109,21 +122,49 @@ class Scorer(GraphNode):
             return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, f"unusable plan: {error}", wall_time)
         moved = {track.actor_id: track for track in self._tracks.pop(query_id, ())}
         actors = tuple(moved.get(actor.actor_id, actor) for actor in self.scenario.actors)
-        result: PlanScore = score_plan(self.scenario, actors, plan, self.decision_log_ns, self.objective)
+        try:
+            return self._score_plan(query_id, self._from_decision(plan), actors, wall_time)
+        except ScenarioError as error:
+            return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, f"unusable plan: {error}", wall_time)
+
+    def _from_decision(self, plan: Plan) -> Plan:
+        """The plan starting at the decision time, as the metrics count horizons (the SDV's pose then first)."""
+        if int(plan.stamps_ns[0]) <= self.decision_log_ns:
+            return plan
+        return Plan(
+            stamps_ns=np.concatenate([[self.decision_log_ns], plan.stamps_ns]),
+            xy=np.vstack([self.decision_xy, plan.xy]),
+            yaws=np.concatenate([[self.decision_yaw], plan.yaws]),
+        )
+
+    def _score_plan(self, query_id: int, plan: Plan, actors: tuple[ActorTrack, ...], wall_time: float) -> Any:
+        settings, scenario = self.settings, self.scenario
+        futures = actor_futures_at(actors, plan.stamps_ns)
+        terms = evaluate_objective(
+            plan,
+            scenario.ego,
+            futures,
+            scenario.ego_size,
+            settings.objective,
+            settings.metrics,
+            self.drivable,
+            scenario.road_map,
+        )
+        metrics = query_metrics(plan, scenario.ego, futures, scenario.ego_size, settings.metrics)
         return self.wire.store.types[QUERY_SCORE](
             query_id=query_id,
             status=STATUS_OK,
             message="",
-            adversarial_loss=result.adversarial_loss,
-            imitation_loss=result.imitation_loss,
-            collision_loss=result.collision_loss,
-            comfort_loss=result.comfort_loss,
-            collision_3s=result.collision_3s,
-            collision_5s=result.collision_5s,
-            l2_human_3s=result.l2_human_3s,
-            l2_human_5s=result.l2_human_5s,
-            lateral_acceleration=result.lateral_acceleration,
-            jerk=result.jerk,
+            adversarial_loss=terms.value,
+            imitation_loss=terms.imitation,
+            collision_loss=terms.collision,
+            comfort_loss=terms.comfort,
+            collision_3s=metrics.at("collision", 3.0),
+            collision_5s=metrics.at("collision", 5.0),
+            l2_human_3s=metrics.at("l2_human", 3.0),
+            l2_human_5s=metrics.at("l2_human", 5.0),
+            lateral_acceleration=metrics.lateral_acceleration,
+            jerk=metrics.jerk,
             wall_time=wall_time,
         )
 

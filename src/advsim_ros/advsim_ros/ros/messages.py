@@ -7,6 +7,7 @@ can hold, and such a dict becomes a message again, field by field, through rosid
 from __future__ import annotations
 
 import array
+import dataclasses
 import importlib
 from collections.abc import Mapping
 from typing import Any
@@ -30,13 +31,27 @@ def message_class(type_name: str) -> type[Any]:
         raise ValueError(f"unknown message type {type_name!r}: {error}") from error
 
 
+def _field_names(message: Any) -> list[str]:
+    """Field names of an rclpy message or of a rosbags message dataclass (constants left out)."""
+    if hasattr(message, "get_fields_and_field_types"):
+        return list(message.get_fields_and_field_types())
+    # ROS field names are lower case; upper-case names are constants, dunder names rosbags metadata
+    return [f.name for f in dataclasses.fields(message) if not f.name.startswith("__") and not f.name.isupper()]
+
+
+def _is_message(value: Any) -> bool:
+    return hasattr(value, "get_fields_and_field_types") or (
+        dataclasses.is_dataclass(value) and hasattr(value, "__msgtype__")
+    )
+
+
 def message_to_dict(message: Any) -> dict[str, Any]:
-    """A message as nested dicts and lists of builtins, in field order."""
-    return {name: _value_to_builtin(getattr(message, name)) for name in message.get_fields_and_field_types()}
+    """A message (rclpy or rosbags) as nested dicts and lists of builtins, in field order."""
+    return {name: _value_to_builtin(getattr(message, name)) for name in _field_names(message)}
 
 
 def _value_to_builtin(value: Any) -> Any:
-    if hasattr(value, "get_fields_and_field_types"):
+    if _is_message(value):
         return message_to_dict(value)
     if isinstance(value, (list, tuple, array.array, np.ndarray)):
         return [_value_to_builtin(item) for item in value]

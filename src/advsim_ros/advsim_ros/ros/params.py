@@ -44,8 +44,8 @@ def _parameter_type(annotation: Any, name: str) -> int:
     raise TypeError(f"config field {name}: type {annotation} has no ROS parameter type")
 
 
-def declare_config(node: Node, config_type: type[ConfigT], prefix: str = "") -> ConfigT:
-    """Declare every field of `config_type` as parameter `<prefix><field>` and build the config from them."""
+def declare_parameters(node: Node, config_type: type[Any], prefix: str = "") -> dict[str, Any]:
+    """Declare every field of `config_type` as parameter `<prefix><field>`; return their values by field name."""
     if not dataclasses.is_dataclass(config_type):
         raise TypeError(f"{config_type} is not a dataclass")
     hints = typing.get_type_hints(config_type)
@@ -69,4 +69,10 @@ def declare_config(node: Node, config_type: type[ConfigT], prefix: str = "") -> 
         value = node.declare_parameter(name, default, descriptor).value
         # array parameters come back as array.array or list; the configs take tuples of builtins
         values[field.name] = list(value) if isinstance(value, (list, tuple, array.array)) else value
+    return values
+
+
+def declare_config(node: Node, config_type: type[ConfigT], prefix: str = "") -> ConfigT:
+    """Declare every field of `config_type` as parameter `<prefix><field>` and build the config from them."""
+    values = declare_parameters(node, config_type, prefix)
     return config_from_mapping(config_type, values, f"/{node.get_name()} {prefix or ''}".rstrip())

@@ -15,7 +15,10 @@ SENSOR = qos_profile_sensor_data
 # both sensor-data (best-effort) subscribers, which is what stacks use, and reliable ones (the player's
 # lock-step check, the recorder), so nothing the graph itself counts is lost to best-effort delivery.
 LIDAR_OUT = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
+    history=HistoryPolicy.KEEP_LAST,
+    depth=5,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
 )
 
 # Per-frame data every participant must see (odometry, plans, detections, logged sweeps for re-simulation).

@@ -34,7 +34,7 @@ from advsim_ros.ros import qos, topics
 from advsim_ros.ros.messages import message_to_dict
 
 WORLD, EGO, SENSOR = "world", "base_link", "velodyne"
-RESEND_AFTER = 20.0  # [s] without the plan for the current sweep: send it again
+RESEND_AFTER = 5.0  # [s] without the plan for the current sweep: send it again (a lost best-effort sample)
 
 
 def _time(stamp_ns: int):
@@ -102,8 +102,10 @@ def main() -> None:
     )  # fmt: skip
     publish_static.publish(TFMessage(transforms=[mount]))
     # The stack is there once it listens to the LiDAR and advertises the plan (as the scenario player checks).
+    print("feed_stack: waiting for the stack", file=sys.stderr, flush=True)
     while publish_cloud.get_subscription_count() < 1 or node.count_publishers(topics.PLAN) < 1:
         rclpy.spin_once(node, timeout_sec=0.1)
+    print("feed_stack: the stack is up", file=sys.stderr, flush=True)
     sent = []
     for index in range(first, first + count):
         stamp = int(scenario.frame_stamps_ns[index])
@@ -112,6 +114,7 @@ def main() -> None:
             publish_clock.publish(Clock(clock=_time(stamp)))
             publish_odometry.publish(_odometry(scenario.ego.poses[index], stamp))
             publish_cloud.publish(_cloud(sweep.points, stamp))
+            print(f"feed_stack: sent frame {index} stamped {stamp}", file=sys.stderr, flush=True)
             deadline = time.monotonic() + RESEND_AFTER
             answered = False
             while time.monotonic() < deadline:
