@@ -19,7 +19,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from advsim_ros.core.curation import CurationConfig, crop_scenario, evaluate_window
-from advsim_ros.core.episode import WindowConfig
+from advsim_ros.core.episode import EpisodeClock, WindowConfig
 from advsim_ros.core.geometry import box_corners
 from advsim_ros.core.types import Plan, Scenario, Sweep
 from advsim_ros.io.bag import BagConfig, read_scenario_bag, write_scenario_bag
@@ -83,10 +83,7 @@ def adversarial_scenario(
         pose = cropped.ego.poses[frame_of[located.log_time_ns]] @ cropped.ego_T_sensor
         sweeps.append(Sweep(located.log_time_ns, cloud.header.frame_id, cloud_to_points(cloud), pose))
     decision_log = int(cropped.frame_stamps_ns[window.decision_index])
-    decision_sim = clock.to_sim(record.query_id, decision_log) if record.query_id >= 0 else None
-    plan = None
-    if decision_sim is not None and decision_sim in record.plans:
-        plan = plan_from_path(wire.decode(record.plans[decision_sim], PATH), decision_sim - decision_log)
+    plan = decision_plan(record.plans, record.query_id, clock, decision_log, wire)
     scenario = Scenario(
         scenario_id=f"{cropped.scenario_id}/adversarial",
         frame_stamps_ns=cropped.frame_stamps_ns,
@@ -99,6 +96,18 @@ def adversarial_scenario(
         ego_size=cropped.ego_size,
     )
     return scenario, plan
+
+
+def decision_plan(
+    plans: dict[int, bytes], query_id: int, clock: EpisodeClock, decision_log: int, wire: Wire
+) -> Plan | None:
+    """The stack's plan from the decision frame of a query, in log time (None when it never came)."""
+    if query_id < 0:
+        return None
+    decision_sim = clock.to_sim(query_id, decision_log)
+    if decision_sim not in plans:
+        return None
+    return plan_from_path(wire.decode(plans[decision_sim], PATH), decision_sim - decision_log)
 
 
 def _curation(window: WindowConfig) -> CurationConfig:
@@ -182,7 +191,10 @@ def write_outputs(
         "outputs": {"adversarial_bag": str(adversarial_path), "bev": str(out_dir / "bev.png")},
     }
     write_json_atomically(out_dir / "summary.json", summary)
-    draw_bev(out_dir / "bev.png", source, scenario, plan, window, summary)
+    decision_log = int(scenario.frame_stamps_ns[window.decision_index])
+    clock = window.clock(source.frame_stamps_ns.tolist())
+    original_plan = decision_plan(record.original_plans, 0, clock, decision_log, wire)
+    draw_bev(out_dir / "bev.png", source, scenario, (original_plan, plan), window, summary)
     return summary
 
 
@@ -201,6 +213,10 @@ def _extra_messages(
     if perturbation is not None:
         extra.append((topics.PERTURBATION, PERTURBATION, decision, wire.encode(perturbation)))
     return extra
+
+
+def _number(value: Any) -> str:
+    return "n/a" if value is None else f"{value:.3g}"
 
 
 def draw_bev(
@@ -225,10 +241,10 @@ def draw_bev(
     moved_ids = set(summary["perturbed_actors"])
     figure, axes = plt.subplots(1, 2, figsize=(14, 6.5), sharex=True, sharey=True)
     panels = (
-        ("original (logged)", source, summary.get("original")),
-        ("adversarial", adversarial, summary.get("adversarial")),
+        ("original (logged)", source, summary.get("original"), plans[0]),
+        ("adversarial", adversarial, summary.get("adversarial"), plans[1]),
     )
-    for axis, (title, scenario, score) in zip(axes, panels, strict=True):
+    for axis, (title, scenario, score, plan) in zip(axes, panels, strict=True):
         if scenario is adversarial and adversarial.sweeps:
             sweep = adversarial.sweeps[-1]
             xyz = sweep.xyz[:: max(1, sweep.num_points // 20000)]
@@ -253,12 +269,13 @@ def draw_bev(
         corners = box_corners(ego_box)
         axis.fill(corners[:, 0], corners[:, 1], color="tab:green", alpha=0.6, label="SDV")
         axis.plot(future[:, 0], future[:, 1], color="tab:green", lw=2, label="human trajectory")
-        if scenario is adversarial and plan is not None:
+        if plan is not None:
             axis.plot(plan.xy[:, 0], plan.xy[:, 1], color="black", lw=2, label="stack plan")
         text = (
             "no score"
             if score is None
-            else f"L_adv {score.get('adversarial_loss')}  collision@5s {score.get('collision_5s')}"
+            else f"L_adv {_number(score.get('adversarial_loss'))}   collision@5s {_number(score.get('collision_5s'))}   "
+            f"L2@5s {_number(score.get('l2_human_5s'))} m"
         )
         axis.set_title(f"{title}\n{text}", fontsize=10)
         axis.set_aspect("equal")

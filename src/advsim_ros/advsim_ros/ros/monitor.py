@@ -49,6 +49,7 @@ class Recording:
     sweeps: dict[int, bytes] = field(default_factory=dict)  # sim stamp -> re-simulated PointCloud2
     plans: dict[int, bytes] = field(default_factory=dict)  # header stamp -> Path
     tracks: bytes | None = None  # ActorTrackArray of the query
+    original_plans: dict[int, bytes] = field(default_factory=dict)  # the plans of query 0, kept for comparison
 
 
 class AttackMonitor:
@@ -100,6 +101,8 @@ class AttackMonitor:
     def _on_tracks(self, raw: bytes) -> None:
         query_id = int(self.wire.decode(raw, ACTOR_TRACK_ARRAY).query_id)
         if query_id != self.record.query_id:  # a new query: forget the previous one's raw messages
+            if self.record.query_id == 0:
+                self.record.original_plans = dict(self.record.plans)
             self.record.query_id = query_id
             self.record.sweeps.clear()
             self.record.plans.clear()
