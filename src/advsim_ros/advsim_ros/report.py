@@ -223,7 +223,7 @@ def draw_bev(
     path: Path,
     source: Scenario,
     adversarial: Scenario,
-    plan: Plan | None,
+    plans: tuple[Plan | None, Plan | None],
     window: WindowConfig,
     summary: dict[str, Any],
 ) -> None:
@@ -274,8 +274,8 @@ def draw_bev(
         text = (
             "no score"
             if score is None
-            else f"L_adv {_number(score.get('adversarial_loss'))}   collision@5s {_number(score.get('collision_5s'))}   "
-            f"L2@5s {_number(score.get('l2_human_5s'))} m"
+            else f"L_adv {_number(score.get('adversarial_loss'))}   "
+            f"collision@5s {_number(score.get('collision_5s'))}   L2@5s {_number(score.get('l2_human_5s'))} m"
         )
         axis.set_title(f"{title}\n{text}", fontsize=10)
         axis.set_aspect("equal")
