@@ -276,6 +276,10 @@ def _follow(
             raise AttackError(
                 f"no score for {limit:.0f} s after {seen} of {expected} queries; logs in {launcher.log_dir}"
             )
+    # the last query's DONE may still be on its way (another topic than the score)
+    deadline = time.monotonic() + 2.0
+    while monitor.missing_episodes() and time.monotonic() < deadline:
+        monitor.spin_once(0.1)
     return crashes
 
 

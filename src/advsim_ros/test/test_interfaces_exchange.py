@@ -90,6 +90,7 @@ SAMPLES: dict[str, list[dict]] = {
             "segment_end": {"sec": 107, "nanosec": 500},
             "sweeps_delivered": 10,
             "plans_received": 9,
+            "outcome": 1,
         }
     ],
     "advsim_msgs/msg/Polyline": [{"x": [1.0, 2.0, 3.5], "y": [-1.0, 0.5, 4.0]}],

@@ -38,6 +38,9 @@ from advsim_ros.ros.params import declare_config
 from advsim_ros.ros.wire import (
     ACTOR_TRACK_ARRAY,
     EPISODE,
+    OUTCOME_COMPLETE,
+    OUTCOME_PLANS_MISSING,
+    OUTCOME_STACK_LOST,
     PATH,
     PHASE_DECISION,
     PHASE_DONE,
@@ -146,6 +149,8 @@ class ScenarioPlayer(GraphNode):
         self.raw_subscription(PATH, topics.PLAN, qos.STREAM, self._on_plan, decode=False)
         self.raw_subscription(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks)
         self._stop = threading.Event()
+        self._stack_lost = False
+        self._publishers_at_start: frozenset[bytes] = frozenset()
         self._driver = threading.Thread(target=self._drive, name="replay", daemon=True)
         self._driver.start()
         self.get_logger().info(
@@ -168,8 +173,25 @@ class ScenarioPlayer(GraphNode):
         self._driver.join(timeout=5.0)
         super().destroy_node()
 
+    def _plan_publishers(self) -> frozenset[bytes]:
+        return frozenset(bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topics.PLAN))
+
     def _stack_gone(self) -> bool:
-        return self._stop.is_set() or self.count_publishers(topics.PLAN) == 0
+        """Whether the stack's plan publisher changed since the query began (exit, crash, restart).
+
+        A process that crashed stays in the DDS graph until its lease expires, but a restarted
+        one brings a new publisher: no publisher, or one that was not there when the query began,
+        counts (an old one expiring does not), and is remembered for the rest of the query.
+        """
+        current = self._plan_publishers()
+        if not current or current - self._publishers_at_start:
+            self._stack_lost = True
+        return self._stop.is_set() or self._stack_lost
+
+    def _watch_stack(self) -> bool:
+        """While waiting for a sweep: note whether the stack is gone, give up only when shutting down."""
+        self._stack_gone()
+        return self._stop.is_set()
 
     def _graph_ready(self) -> bool:
         """The stack listens and answers, and (unless we feed the LiDAR ourselves) lidar_resim is up."""
@@ -203,8 +225,10 @@ class ScenarioPlayer(GraphNode):
         while not self._graph_ready() and time.monotonic() < deadline and not self._stop.is_set():
             self._stop.wait(_GRAPH_POLL)
         self.publish_episode(episode_msg(self.wire, query_id, PHASE_START, 0, count, segment))
-        delivered = received = 0
+        delivered = received = awaited = 0
         plans_flowing = True
+        self._stack_lost = False
+        self._publishers_at_start = self._plan_publishers()
         for index, frame in enumerate(self.frames):
             sim_stamp = self.clock.to_sim(query_id, frame.log_stamp_ns)
             self.publish_clock(self.wire.clock(sim_stamp))
@@ -214,12 +238,13 @@ class ScenarioPlayer(GraphNode):
             self.publish_tf(self.wire.store.types[TF_MESSAGE](transforms=[ego_tf]))
             self.publish_odom(restamp(frame.odometry, sim_stamp))
             self.publish_cloud(restamp(frame.cloud, sim_stamp))
-            if self.sweeps_seen.wait(sim_stamp, self.config.sweep_timeout, lambda: self._stop.is_set()):
+            if self.sweeps_seen.wait(sim_stamp, self.config.sweep_timeout, self._watch_stack):
                 delivered += 1
             else:
                 self.get_logger().error(f"query {query_id} frame {index}: re-simulated sweep did not arrive")
             decision = index == count - 1
             if decision or (self.config.wait_for_every_plan and plans_flowing):
+                awaited += 1
                 if self.plans_seen.wait(sim_stamp, self.config.plan_timeout, self._stack_gone):
                     received += 1
                 else:
@@ -227,8 +252,15 @@ class ScenarioPlayer(GraphNode):
                     self.get_logger().warning(f"query {query_id} frame {index}: no plan from the stack")
             phase = PHASE_DECISION if decision else PHASE_REPLAY
             self.publish_episode(episode_msg(self.wire, query_id, phase, index, count, segment, delivered, received))
+        self._stack_gone()
+        if self._stack_lost:
+            outcome = OUTCOME_STACK_LOST
+        elif received < awaited or delivered < count:
+            outcome = OUTCOME_PLANS_MISSING
+        else:
+            outcome = OUTCOME_COMPLETE
         self.publish_episode(
-            episode_msg(self.wire, query_id, PHASE_DONE, count - 1, count, segment, delivered, received)
+            episode_msg(self.wire, query_id, PHASE_DONE, count - 1, count, segment, delivered, received, outcome)
         )
 
 

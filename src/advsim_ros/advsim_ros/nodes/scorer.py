@@ -29,6 +29,8 @@ from advsim_ros.ros.params import declare_config, declare_parameters
 from advsim_ros.ros.wire import (
     ACTOR_TRACK_ARRAY,
     EPISODE,
+    OUTCOME_PLANS_MISSING,
+    OUTCOME_STACK_LOST,
     PATH,
     PHASE_DONE,
     PHASE_START,
@@ -102,10 +104,21 @@ class Scorer(GraphNode):
         if message.phase == PHASE_START:
             self._started[query_id] = time.monotonic()
         elif message.phase == PHASE_DONE:
-            self.publish_score(self._score(query_id))
+            self.publish_score(self._score(query_id, message))
 
-    def _score(self, query_id: int) -> Any:
+    def _score(self, query_id: int, done: Any) -> Any:
         wall_time = time.monotonic() - self._started.pop(query_id, time.monotonic())
+        if done.outcome == OUTCOME_STACK_LOST:
+            self._tracks.pop(query_id, None)
+            reason = "the stack stopped during the query (its plan publisher vanished or was replaced: crash, restart)"
+            return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, reason, wall_time)
+        if done.outcome == OUTCOME_PLANS_MISSING:
+            self._tracks.pop(query_id, None)
+            reason = (
+                f"the stack answered {done.plans_received} of the frames it was waited for "
+                f"({done.sweeps_delivered} of {done.num_frames} sweeps delivered)"
+            )
+            return failed_score_msg(self.wire, query_id, STATUS_STACK_TIMEOUT, reason, wall_time)
         decision_sim = self.clock.to_sim(query_id, self.decision_log_ns)
         with self._condition:
             self._condition.wait_for(lambda: decision_sim in self._plans, self.config.plan_grace)

@@ -27,6 +27,7 @@ from advsim_ros.ros.wire import (
     PERTURBATION,
     PHASE_DONE,
     QUERY_SCORE,
+    STATUS_INFEASIBLE,
     STATUS_OK,
     Wire,
     header_stamp_ns,
@@ -143,6 +144,14 @@ class AttackMonitor:
         best = max((float(s.adversarial_loss) for s in ok), default=math.nan)
         failed = sum(1 for s in self.record.scores.values() if s.status != STATUS_OK)
         return {"scored": self.num_scores, "best_adversarial_loss": best, "failed": failed}
+
+    def missing_episodes(self) -> list[int]:
+        """Scored queries whose Episode DONE has not arrived (queries scored infeasible never had one)."""
+        return [
+            query
+            for query, score in self.record.scores.items()
+            if query not in self.record.episodes and score.status != STATUS_INFEASIBLE
+        ]
 
     def recording(self) -> Recording:
         return self.record

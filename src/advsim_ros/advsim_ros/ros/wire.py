@@ -29,6 +29,7 @@ CLOCK = "rosgraph_msgs/msg/Clock"
 
 # advsim_msgs/Episode phases
 PHASE_START, PHASE_REPLAY, PHASE_DECISION, PHASE_DONE = 0, 1, 2, 3
+OUTCOME_COMPLETE, OUTCOME_PLANS_MISSING, OUTCOME_STACK_LOST = 0, 1, 2
 
 # advsim_msgs/QueryScore status values
 STATUS_OK = 0
@@ -256,6 +257,7 @@ def episode_msg(
     segment: tuple[int, int],
     sweeps_delivered: int = 0,
     plans_received: int = 0,
+    outcome: int = 0,
 ) -> Any:
     return wire.store.types[EPISODE](
         query_id=int(query_id),
@@ -266,4 +268,5 @@ def episode_msg(
         segment_end=time_msg(wire.store, segment[1]),
         sweeps_delivered=int(sweeps_delivered),
         plans_received=int(plans_received),
+        outcome=int(outcome),
     )
