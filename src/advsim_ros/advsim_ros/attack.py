@@ -13,6 +13,7 @@ kept in OUTDIR/queries.jsonl as they finish: running again with the same OUTDIR 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -66,6 +67,7 @@ class StackSpec:
     params_files: tuple[Path, ...] = ()
     restart: bool = True  # start it again when it exits during the attack
     rename_node: bool = False  # reference stacks are single nodes; users' commands keep their names
+    sim_time: bool = True  # append `-p use_sim_time:=true` (off for commands that take no --ros-args)
 
     @staticmethod
     def reference(params_dir: Path | None = None) -> StackSpec:
@@ -98,8 +100,9 @@ class StackSpec:
             command = tuple(shlex.split(text))
             if not command:
                 raise ScenarioError("--stack: empty command")
-            spec = StackSpec("stack", command)
-        return StackSpec(spec.name, spec.command, dict(remappings or {}), spec.params_files, spec.restart)
+            # a user's command line gets --ros-args only for remappings (ros2 launch takes none)
+            spec = StackSpec("stack", command, sim_time=False)
+        return dataclasses.replace(spec, remappings=dict(remappings or {}))
 
 
 @dataclass(frozen=True)
@@ -207,7 +210,7 @@ def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None
         options.stack.command,
         remappings=options.stack.remappings,
         params_files=options.stack.params_files,
-        parameters={"use_sim_time": True},
+        parameters={"use_sim_time": True} if options.stack.sim_time else {},
         rename_node=options.stack.rename_node,
     )
     expected = 1 if options.replay_only else options.queries + 2  # original + queries + replay of the best
