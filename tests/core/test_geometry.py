@@ -46,7 +46,9 @@ def test_box_corners_match_the_shapely_outline(values: tuple[float, ...]) -> Non
     polygon = shapely.Polygon(corners)
     assert polygon.is_valid
     assert polygon.exterior.is_ccw
-    assert polygon.symmetric_difference(_polygon(box)).area == pytest.approx(0.0, abs=1e-6)
+    # Hausdorff distance, not the area of the symmetric difference: GEOS overlays of two coincident
+    # polygons can fail (a square at yaw 8.757 rad gave 38 m^2 for identical outlines)
+    assert shapely.hausdorff_distance(polygon, _polygon(box)) == pytest.approx(0.0, abs=1e-9)
 
 
 @settings(max_examples=400, deadline=None)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from advsim_ros.io.kitti import load_kitti_tracking
 from advsim_ros.ros.launcher import Launcher, NodeSpec, python_module_command, wait_for
 from advsim_ros.stacks.learned.config import PACKAGED_WEIGHTS
 
@@ -82,8 +83,6 @@ def test_modular_stack_process_answers_every_kitti_sweep_with_a_stamped_plan_and
     for track in last["tracks"]:
         assert [_stamp(state["stamp"]) for state in track["states"]] == [stamps[-1]]
     # The van ahead (KITTI track 0) is among the detected vehicles, where the labels put it.
-    from advsim_ros.io.kitti import load_kitti_tracking
-
     van = load_kitti_tracking(KITTI, "0000").actor("0")
     van_xy = van.centers[list(van.stamps_ns).index(stamps[-1]), :2]
     vehicles = [t["states"][0] for t in last["tracks"] if t["actor_class"] == "vehicle"]
@@ -100,4 +99,5 @@ def test_learned_stack_process_answers_every_kitti_sweep_with_a_stamped_plan(
     assert PACKAGED_WEIGHTS.is_file(), f"packaged weights missing: {PACKAGED_WEIGHTS} (run `advsim train-il`)"
     received = _run(ros_graph, tmp_path, kitti_root, "learned", objects=False)
     _check_plans(received)
-    assert received["detections"] == [] and received["predictions"] == []
+    assert received["detections"] == []
+    assert received["predictions"] == []

@@ -147,3 +147,26 @@ def circumradius(boxes: npt.ArrayLike) -> AnyFloatArray:
     array = _as_boxes("circumradius", boxes)
     result: AnyFloatArray = 0.5 * np.hypot(array[..., 3], array[..., 4])
     return result
+
+
+def bev_iou(a: npt.ArrayLike, b: npt.ArrayLike) -> AnyFloatArray:
+    """(...,) bird's-eye-view intersection over union of boxes a and b [1], broadcasting; 0 for disjoint boxes.
+
+    Exact polygon clipping (shapely), run only on the pairs that overlap.
+    """
+    import shapely  # only the IoU needs polygon clipping
+
+    box_a = _as_boxes("bev_iou a", a)
+    box_b = _as_boxes("bev_iou b", b)
+    box_a, box_b = np.broadcast_arrays(box_a, box_b)
+    iou = np.zeros(box_a.shape[:-1], dtype=np.result_type(box_a.dtype, box_b.dtype))
+    overlapping = boxes_overlap(box_a, box_b)
+    if not np.any(overlapping):
+        return iou
+    polygons_a = shapely.polygons(box_corners(box_a[overlapping]).astype(np.float64))
+    polygons_b = shapely.polygons(box_corners(box_b[overlapping]).astype(np.float64))
+    intersection = shapely.area(shapely.intersection(polygons_a, polygons_b))
+    areas_a = box_a[overlapping][:, 3] * box_a[overlapping][:, 4]
+    areas_b = box_b[overlapping][:, 3] * box_b[overlapping][:, 4]
+    iou[overlapping] = intersection / (areas_a + areas_b - intersection)
+    return iou

@@ -64,6 +64,8 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         arguments = typing.get_args(annotation)
         if not isinstance(value, list | tuple):
             raise ParamsError(f"{key}: expected a list, got {value!r}")
+        if arguments and arguments[-1] is not Ellipsis and len(arguments) != len(value):
+            raise ParamsError(f"{key}: expected {len(arguments)} entries, got {len(value)}")
         item_type = arguments[0] if arguments else Any
         return tuple(_coerce(item, item_type, f"{key}[{index}]") for index, item in enumerate(value))
     if annotation is Any:

@@ -15,11 +15,10 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 from rclpy.callback_groups import ReentrantCallbackGroup
 
 from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
-from advsim_ros.core.metrics import MetricsConfig, actor_futures_at, query_metrics
+from advsim_ros.core.metrics import MetricsConfig, actor_futures_at, plan_from_decision, query_metrics
 from advsim_ros.core.objective import ObjectiveConfig, evaluate_objective, scorer_settings_from_params
 from advsim_ros.core.types import ActorTrack, Plan, ScenarioError
 from advsim_ros.ros import qos, topics
@@ -74,8 +73,7 @@ class Scorer(GraphNode):
         frames = self.window.frame_indices(self.scenario.num_frames)
         decision = frames.start + self.window.decision_index
         self.decision_log_ns = int(self.scenario.frame_stamps_ns[decision])
-        self.decision_xy = self.scenario.ego.xy[decision]
-        self.decision_yaw = float(self.scenario.ego.yaws[decision])
+        self.decision_pose = self.scenario.ego.poses[decision]
         self.publish_score = self.raw_publisher(QUERY_SCORE, topics.SCORE, qos.HISTORY)
         self._plans: dict[int, bytes] = {}
         self._tracks: dict[int, tuple[ActorTrack, ...]] = {}
@@ -136,19 +134,11 @@ class Scorer(GraphNode):
         moved = {track.actor_id: track for track in self._tracks.pop(query_id, ())}
         actors = tuple(moved.get(actor.actor_id, actor) for actor in self.scenario.actors)
         try:
-            return self._score_plan(query_id, self._from_decision(plan), actors, wall_time)
+            return self._score_plan(
+                query_id, plan_from_decision(plan, self.decision_pose, self.decision_log_ns), actors, wall_time
+            )
         except ScenarioError as error:
             return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, f"unusable plan: {error}", wall_time)
-
-    def _from_decision(self, plan: Plan) -> Plan:
-        """The plan starting at the decision time, as the metrics count horizons (the SDV's pose then first)."""
-        if int(plan.stamps_ns[0]) <= self.decision_log_ns:
-            return plan
-        return Plan(
-            stamps_ns=np.concatenate([[self.decision_log_ns], plan.stamps_ns]),
-            xy=np.vstack([self.decision_xy, plan.xy]),
-            yaws=np.concatenate([[self.decision_yaw], plan.yaws]),
-        )
 
     def _score_plan(self, query_id: int, plan: Plan, actors: tuple[ActorTrack, ...], wall_time: float) -> Any:
         settings, scenario = self.settings, self.scenario

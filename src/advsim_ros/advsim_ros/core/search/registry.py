@@ -1,0 +1,97 @@
+"""Search algorithms by name, their configs, and the search parameters file.
+
+Names: "bo" (GP-UCB), "ga" (GenAttack-style GA), "rs" (SimBA), "nes" (NES),
+"bandit" (Bandit-TD), "random" (uniform sampling, the baseline). Modules are imported on
+first use, so that choosing "ga" never pays for importing torch and BoTorch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from advsim_ros.core.params import ParamsError, config_from_mapping, load_node_params
+from advsim_ros.core.search.base import SearchAlgorithm, SearchConfig, SearchError
+
+ALGORITHM_NAMES = ("bo", "ga", "rs", "nes", "bandit", "random")
+SEARCH_NODE_NAME = "search"  # node whose parameters params/search.yaml holds
+
+# name -> (module, algorithm class, config class)
+_ENTRIES: dict[str, tuple[str, str, str]] = {
+    "bo": ("advsim_ros.core.search.bo", "BayesianOptimization", "BoConfig"),
+    "ga": ("advsim_ros.core.search.ga", "GeneticAlgorithm", "GaConfig"),
+    "rs": ("advsim_ros.core.search.simba", "Simba", "SimbaConfig"),
+    "nes": ("advsim_ros.core.search.nes", "Nes", "NesConfig"),
+    "bandit": ("advsim_ros.core.search.bandit_td", "BanditTd", "BanditConfig"),
+    "random": ("advsim_ros.core.search.random_search", "RandomSearch", "RandomSearchConfig"),
+}
+
+
+def _entry(name: str) -> tuple[type[SearchAlgorithm[Any]], type[SearchConfig]]:
+    if name not in _ENTRIES:
+        raise SearchError(f"unknown search algorithm {name!r} (known: {', '.join(ALGORITHM_NAMES)})")
+    module_name, algorithm_name, config_name = _ENTRIES[name]
+    module = importlib.import_module(module_name)
+    algorithm: type[SearchAlgorithm[Any]] = getattr(module, algorithm_name)
+    config: type[SearchConfig] = getattr(module, config_name)
+    return algorithm, config
+
+
+def config_type(name: str) -> type[SearchConfig]:
+    """The frozen config dataclass of algorithm `name`."""
+    return _entry(name)[1]
+
+
+def default_config(name: str) -> SearchConfig:
+    """Algorithm `name`'s config with every default (the paper's settings)."""
+    return config_type(name)()
+
+
+def make_search(
+    name: str,
+    dimension: int,
+    rng: np.random.Generator,
+    config: SearchConfig | None = None,
+) -> SearchAlgorithm[Any]:
+    """A fresh search of algorithm `name` over [-1, 1]^dimension; the defaults when config is None."""
+    algorithm, expected = _entry(name)
+    settings = expected() if config is None else config
+    if not isinstance(settings, expected):
+        raise SearchError(f"search {name!r} needs a {expected.__name__}, got {type(settings).__name__}")
+    return algorithm(settings, dimension, rng)
+
+
+def config_from_params(name: str, mapping: Mapping[str, Any], context: str = "") -> SearchConfig:
+    """Algorithm `name`'s config from a parameters mapping (unknown keys and bad values name the key)."""
+    return config_from_mapping(config_type(name), mapping, context or f"search {name}")
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """What the search node runs: the algorithm, its config and the seed."""
+
+    algorithm: str  # registry name
+    config: SearchConfig  # the algorithm's hyper-parameters and budget
+    seed: int  # seeds the search's numpy Generator [1]
+
+
+def load_search_settings(path: Path, algorithm: str | None = None) -> SearchSettings:
+    """Read params/search.yaml (node /search); `algorithm` overrides the file's choice."""
+    parameters = load_node_params(path, SEARCH_NODE_NAME)
+    context = f"{path} /{SEARCH_NODE_NAME}"
+    name = parameters.get("algorithm") if algorithm is None else algorithm
+    if not isinstance(name, str) or name not in ALGORITHM_NAMES:
+        raise ParamsError(f"{context}.algorithm: {name!r} is not one of {', '.join(ALGORITHM_NAMES)}")
+    seed = parameters.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ParamsError(f"{context}.seed: expected a non-negative integer, got {seed!r}")
+    unknown = sorted(set(parameters) - {"algorithm", "seed", *ALGORITHM_NAMES})
+    if unknown:
+        raise ParamsError(f"{context}: unknown parameter(s) {unknown}")
+    section = parameters.get(name, {})
+    return SearchSettings(name, config_from_params(name, section, f"{context}.{name}"), seed)

@@ -1,0 +1,167 @@
+"""The ROS node around a reference stack: topics in, one stack step per sweep, topics out.
+
+Subscribes to the LiDAR (sensor-data QoS), the ego odometry, /tf_static (for the ego ->
+sensor mount) and the road map; a sweep is planned from as soon as the odometry for its
+stamp is there (sweeps may arrive before or after their odometry) and the sensor mount is
+known (from /tf_static, or the io.sensor_mount parameter after io.mount_wait_s without it). Publishes for every
+sweep a nav_msgs/Path in the odometry's world frame stamped with the sweep's stamp and,
+when the stack makes them, its detections and predictions. Parameters are the stack's
+config sections, declared as dotted ROS parameters (params/stack_*.yaml).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from nav_msgs.msg import Odometry, Path
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from tf2_msgs.msg import TFMessage
+
+from advsim_msgs.msg import ActorTrackArray, RoadMap
+from advsim_ros.core.types import FloatArray, ScenarioError
+from advsim_ros.io.pointcloud import cloud_to_points
+from advsim_ros.ros import qos, topics
+from advsim_ros.ros.params import declare_config
+from advsim_ros.stacks.interface import AutonomyStack, StackFrame, TopicIoConfig, points_xyz
+from advsim_ros.stacks.params import section_types
+from advsim_ros.stacks.ros_io import (
+    PoseBuffer,
+    mount_matrix,
+    path_msg,
+    road_map_from_msg,
+    stamp_ns,
+    static_transforms,
+    track_array_msg,
+)
+
+
+def declare_sections(node: Node, config_type: type[Any]) -> Any:
+    """A sectioned stack config from ROS parameters `<section>.<key>` (defaults: the dataclasses')."""
+    return config_type(
+        **{name: declare_config(node, section, f"{name}.") for name, section in section_types(config_type).items()}
+    )
+
+
+class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
+    """One reference stack as a ROS node."""
+
+    def __init__(self, name: str, make_stack: Callable[[Any], AutonomyStack], config_type: type[Any]) -> None:
+        super().__init__(name)
+        self.config = declare_sections(self, config_type)
+        io: TopicIoConfig = self.config.io
+        self._io = io
+        self.stack = make_stack(self.config)
+        self._poses = PoseBuffer(io.odometry_buffer)
+        self._pending: deque[PointCloud2] = deque()
+        self._static: dict[tuple[str, str], FloatArray] = {}
+        self._fallback_mount = mount_matrix(io.sensor_mount)
+        self._warned_mount = False
+        self._first_cloud_at: float | None = None  # wall clock of the first sweep, for io.mount_wait_s
+        self._publish_plan = self.create_publisher(Path, topics.PLAN, qos.STREAM).publish
+        self._publish_detections = self.create_publisher(ActorTrackArray, topics.DETECTIONS, qos.STREAM).publish
+        self._publish_predictions = self.create_publisher(ActorTrackArray, topics.PREDICTIONS, qos.STREAM).publish
+        self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.LATCHED)
+        self.create_subscription(RoadMap, topics.MAP, self._on_map, qos.LATCHED)
+        self.create_subscription(Odometry, topics.ODOM, self._on_odometry, qos.STREAM)
+        self.create_subscription(PointCloud2, topics.LIDAR, self._on_cloud, qos.SENSOR)
+        # Sweeps waiting for /tf_static must be planned from once the wait is over, even if nothing else arrives.
+        self.create_timer(0.1, self._process_pending, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"{self.stack.name} stack ready")
+
+    def _on_tf_static(self, message: TFMessage) -> None:
+        self._static.update(static_transforms(message))
+
+    def _on_map(self, message: RoadMap) -> None:
+        try:
+            self.stack.set_road_map(road_map_from_msg(message))
+        except ScenarioError as error:
+            self.get_logger().error(f"road map ignored: {error}")
+
+    def _on_odometry(self, message: Odometry) -> None:
+        try:
+            self._poses.add_odometry(message)
+        except ScenarioError as error:
+            self.get_logger().error(f"odometry ignored: {error}")
+            return
+        self._process_pending()
+
+    def _on_cloud(self, message: PointCloud2) -> None:
+        if self._first_cloud_at is None:
+            self._first_cloud_at = time.monotonic()
+        self._pending.append(message)
+        while len(self._pending) > self._io.max_pending:
+            dropped = self._pending.popleft()
+            self.get_logger().warning(f"no odometry for the sweep at {stamp_ns(dropped.header.stamp)} ns: dropped")
+        self._process_pending()
+
+    def _static_mount(self, sensor_frame: str) -> FloatArray | None:
+        """ego -> sensor from /tf_static (direct, or through one intermediate frame)."""
+        ego_frame = self._poses.ego_frame
+        if (ego_frame, sensor_frame) in self._static:
+            return self._static[(ego_frame, sensor_frame)]
+        for (parent, child), first in self._static.items():
+            if parent == ego_frame and (child, sensor_frame) in self._static:
+                result: FloatArray = first @ self._static[(child, sensor_frame)]
+                return result
+        return None
+
+    def _mount(self, sensor_frame: str) -> FloatArray | None:
+        """ego -> sensor: /tf_static, else (after io.mount_wait_s) the io.sensor_mount parameter; None: wait."""
+        found = self._static_mount(sensor_frame)
+        if found is not None:
+            return found
+        waited = time.monotonic() - (self._first_cloud_at or time.monotonic())
+        if waited < self._io.mount_wait_s:
+            return None
+        if not self._warned_mount:
+            self.get_logger().warning(
+                f"no /tf_static transform {self._poses.ego_frame} -> {sensor_frame}: using parameter io.sensor_mount"
+            )
+            self._warned_mount = True
+        return self._fallback_mount
+
+    def _process_pending(self) -> None:
+        tolerance = int(self._io.pose_tolerance_s * 1e9)
+        while self._pending:
+            cloud = self._pending[0]
+            stamp = stamp_ns(cloud.header.stamp)
+            mount = self._mount(str(cloud.header.frame_id))
+            if mount is None:
+                return  # wait for /tf_static a little longer
+            found = self._poses.lookup(stamp, tolerance)
+            if found is None:
+                newest = self._poses.newest_ns
+                if newest is not None and newest > stamp + tolerance:
+                    self._pending.popleft()  # its odometry is past and was never seen
+                    self.get_logger().warning(f"no odometry at the sweep's stamp {stamp} ns: dropped")
+                    continue
+                return  # wait for the odometry of this stamp
+            self._pending.popleft()
+            self._plan(cloud, stamp, mount, *found)
+
+    def _plan(self, cloud: PointCloud2, stamp: int, mount: FloatArray, world_T_ego: FloatArray, motion: Any) -> None:
+        try:
+            frame = StackFrame(
+                stamp_ns=stamp,
+                xyz=points_xyz(cloud_to_points(cloud)),
+                world_T_ego=world_T_ego,
+                ego_T_sensor=mount,
+                motion=motion,
+            )
+            output = self.stack.step(frame)
+        except ScenarioError as error:
+            self.get_logger().error(f"sweep at {stamp} ns: {error}")
+            return
+        world = self._poses.world_frame
+        self._publish_plan(path_msg(output, stamp, world))
+        if output.detections is not None:
+            self._publish_detections(track_array_msg(output.detections, stamp, world))
+        if output.predictions is not None:
+            self._publish_predictions(track_array_msg(output.predictions, stamp, world))
+        total = output.timings_s.get("total", float("nan"))
+        self.get_logger().debug(f"planned from the sweep at {stamp} ns in {1000.0 * total:.1f} ms")
