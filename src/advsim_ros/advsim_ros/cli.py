@@ -11,12 +11,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 from tqdm import tqdm
 
 from advsim_ros import __version__
 from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
 from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.io.bag import write_scenario_bag
+from advsim_ros.io.synthetic import generate_synthetic_log
 from advsim_ros.report import recorded_score
 
 
@@ -33,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     # each area adds its commands here through _add_<name>_commands(subparsers)
     _add_data_commands(subparsers)
+    _add_synth_commands(subparsers)
     _add_attack_commands(subparsers)
     _add_stack_commands(subparsers)
     return parser
@@ -89,6 +93,36 @@ def _run_curate(args: argparse.Namespace) -> int:
         args.bag, params=args.params, bag_params=args.bag_params, output=args.output, overwrite=args.overwrite
     )
     return _report(report.as_json() if args.json else report.as_table())
+
+
+def _add_synth_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """`advsim synth`: a synthetic street log as a scenario bag (logic in advsim_ros.io.synthetic)."""
+    synth = subparsers.add_parser("synth", help="generate a synthetic street log (meshes, 64-beam LiDAR) as a bag")
+    synth.add_argument("-o", "--output", type=Path, required=True, help="bag folder to write")
+    synth.add_argument("--seed", type=int, default=0, help="seed of the street, its actors and the sensor noise")
+    synth.add_argument("--duration", type=float, default=None, help="log length [s] (default 8)")
+    synth.add_argument(
+        "--params", type=Path, default=None, help="bag topics and frames (default: params/bag.yaml values)"
+    )
+    synth.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    synth.set_defaults(run=_run_synth)
+
+
+def _run_synth(args: argparse.Namespace) -> int:
+    import time
+
+    from advsim_ros.io.bag import load_bag_config
+    from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
+
+    started = time.perf_counter()
+    config = SyntheticConfig() if args.duration is None else SyntheticConfig(duration=args.duration)
+    bag_config = load_bag_config(args.params) if args.params is not None else None
+    path = write_synthetic_bag(
+        args.output, seed=args.seed, config=config, bag_config=bag_config, overwrite=args.overwrite
+    )
+    return _report(
+        f"wrote {path}: synthetic_{args.seed}, {config.num_frames} frames in {time.perf_counter() - started:.1f} s"
+    )
 
 
 def _report(text: str) -> int:
@@ -304,14 +338,13 @@ def _run_replay(args: argparse.Namespace) -> int:
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    from advsim_ros.io.synthetic import write_synthetic_bag
-
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    bag = out / "synthetic_log"
+    bag = out / f"synthetic_log_seed{args.seed}"
     if not (bag / "metadata.yaml").exists():
         print(f"demo: synthesizing a street log (seed {args.seed}) into {bag}")
-        write_synthetic_bag(bag, seed=args.seed)
+        log = generate_synthetic_log(np.random.default_rng(args.seed), scenario_id=f"synthetic_seed{args.seed}")
+        write_scenario_bag(log.scenario, bag, source=f"synthetic/seed={args.seed}")
     options = AttackOptions(
         bag=bag,
         out_dir=out / "attack",

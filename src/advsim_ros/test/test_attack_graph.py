@@ -8,9 +8,11 @@ The stack is a small rclpy process written as a user would (processes/simple_sta
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -19,6 +21,7 @@ from advsim_ros.attack import AttackOptions, StackSpec, run_attack
 from advsim_ros.core.curation import CurationConfig, crop_scenario, evaluate_window
 from advsim_ros.io.bag import write_scenario_bag
 from advsim_ros.io.kitti import load_kitti_tracking
+from advsim_ros.io.synthetic import generate_synthetic_log
 from advsim_ros.report import recorded_score
 
 SHARED_DATA = (Path(__file__).resolve().parents[3] / ".." / "shared" / "data").resolve()
@@ -127,3 +130,41 @@ def test_queries_of_a_crashing_or_hanging_stack_fail_and_the_attack_completes(
     assert len(summary["stack_crashes"]) == 1
     recorded = [json.loads(line) for line in (out / "queries.jsonl").read_text().splitlines()]
     assert [r["query_id"] for r in recorded] == sorted(statuses)
+
+
+@pytest.fixture(scope="module")
+def synthetic_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A synthetic street log (ray-cast LiDAR, tracks, map) as a scenario bag."""
+    log = generate_synthetic_log(np.random.default_rng(3), scenario_id="synthetic_seed3")
+    return write_scenario_bag(log.scenario, tmp_path_factory.mktemp("synthetic") / "log", source="synthetic/seed=3")
+
+
+def _advsim(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "advsim_ros.cli", *args], capture_output=True, text=True, timeout=900, check=False
+    )
+
+
+@pytest.mark.slow
+def test_cli_attack_on_the_reference_stack_then_replay_reproduces_the_score(
+    synthetic_bag: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "out"
+    attack = _advsim(
+        "attack", str(synthetic_bag), "--stack", "reference", "--algo", "random", "--queries", "2", "-o", str(out)
+    )
+    assert attack.returncode == 0, attack.stderr
+    assert f"outputs: {out.resolve()}/adversarial" in attack.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stack"]["name"] == "modular_stack"
+    assert [q["score"]["status"] for q in summary["queries"]] == ["ok"] * 4
+
+    replay = _advsim("replay", str(out / "adversarial"), "--stack", "reference", "--check", "-o", str(tmp_path / "r"))
+    assert replay.returncode == 0, replay.stdout + replay.stderr
+    assert "recorded L_adv" in replay.stdout
+
+
+def test_cli_attack_on_a_folder_that_is_not_a_bag_fails_with_a_clear_message(tmp_path: Path) -> None:
+    result = _advsim("attack", str(tmp_path), "-o", str(tmp_path / "out"))
+    assert result.returncode == 1
+    assert "not a rosbag2 folder" in result.stderr
