@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -34,6 +35,7 @@ from advsim_ros.core.types import (
     SensorModel,
     Sweep,
 )
+from advsim_ros.io.bag import BagConfig, write_scenario_bag
 
 SYNTHETIC_START_NS = 1_000_000_000  # first frame at 1 s (ROS treats time 0 as unset)
 SYNTHETIC_FRAME_PERIOD_NS = 100_000_000  # 10 Hz
@@ -304,6 +306,19 @@ def generate_synthetic_log(
     return SyntheticLog(scenario=scenario, static_surface=static, actor_surfaces=surfaces, config=config)
 
 
+def write_synthetic_bag(
+    path: Path,
+    *,
+    seed: int,
+    config: SyntheticConfig | None = None,
+    bag_config: BagConfig | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Generate the synthetic log of `seed` and write it as a scenario bag at `path` (atomically)."""
+    log = generate_synthetic_log(np.random.default_rng(seed), config, scenario_id=f"synthetic_{seed}")
+    return write_scenario_bag(log.scenario, path, config=bag_config, source=f"synthetic/{seed}", overwrite=overwrite)
+
+
 __all__ = [
     "SYNTHETIC_FRAME_PERIOD_NS",
     "SYNTHETIC_START_NS",
@@ -311,4 +326,5 @@ __all__ = [
     "SyntheticLog",
     "generate_synthetic_log",
     "synthetic_sensor_model",
+    "write_synthetic_bag",
 ]

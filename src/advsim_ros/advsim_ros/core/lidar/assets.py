@@ -1,0 +1,211 @@
+"""Actor assets: each track's surface in its box frame, built from the log or a class template.
+
+An observed asset aggregates the track's points over the whole log in its box frame
+(vehicles and cyclists mirrored left-right: one side seen is both sides known) and turns
+them into surfels. Tracks with too few points use a class template: a few cuboids shaped
+like the class (also the meshes of the synthetic logs' actors). Every asset carries the
+probability that a ray hitting it returns nothing (dark paint, glass), estimated from the
+log by comparing the asset's hits at the logged poses with the returns the sensor got.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from advsim_ros.core.lidar.raycast import Surface, cuboid_surface
+from advsim_ros.core.lidar.surfels import PointSamples, SurfelCloud, surfels_from_samples
+from advsim_ros.core.types import ActorClass, FloatArray, ScenarioError
+
+ICP_ITERATIONS = 10
+ICP_MIN_MATCHES = 30  # frames with fewer points (or matches) are not aligned
+ICP_MAX_DISTANCE = 0.3  # points farther than this from the reference do not pull [m]
+ICP_MAX_SHIFT = 0.5  # larger corrections are refused [m]
+ICP_MAX_TURN = np.deg2rad(8.0)  # [rad]
+ICP_GAIN = 0.8  # a correction must bring the mean fit error below this share of the uncorrected one
+ICP_SOURCE_POINTS = 800  # a frame's points are thinned to about this many for its alignment
+ICP_REFERENCE_POINTS = 30_000  # the merged reference of the second pass is thinned to about this many points
+
+# Template parts per class as fractions of (length, width, height), box frame with z from -1/2 to 1/2.
+_TEMPLATE_PARTS: dict[ActorClass, tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...]] = {
+    ActorClass.VEHICLE: (
+        ((-0.5, -0.5, -0.38), (0.5, 0.5, 0.1)),  # body
+        ((-0.36, -0.44, 0.1), (0.22, 0.44, 0.5)),  # cabin
+        ((0.24, -0.48, -0.5), (0.40, 0.48, -0.38)),  # front wheels
+        ((-0.40, -0.48, -0.5), (-0.24, 0.48, -0.38)),  # rear wheels
+    ),
+    ActorClass.PEDESTRIAN: (
+        ((-0.25, -0.35, -0.5), (0.25, 0.35, 0.36)),  # legs and torso
+        ((-0.18, -0.2, 0.36), (0.18, 0.2, 0.5)),  # head
+    ),
+    ActorClass.CYCLIST: (
+        ((-0.5, -0.08, -0.5), (0.5, 0.08, -0.05)),  # bicycle
+        ((-0.22, -0.4, -0.15), (0.12, 0.4, 0.5)),  # rider
+    ),
+    ActorClass.OTHER: (((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)),),
+}
+
+
+def template_surface(actor_class: ActorClass, size: FloatArray, intensity: float) -> Surface:
+    """A class-shaped surface filling a box of `size` (3,) l, w, h [m], in the box frame."""
+    scale = np.asarray(size, dtype=np.float64)
+    parts = _TEMPLATE_PARTS[ActorClass(actor_class)]
+    return Surface.concatenate(
+        [cuboid_surface(np.array(lower) * scale, np.array(upper) * scale, intensity) for lower, upper in parts]
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ActorAsset:
+    """One actor's surface in its box frame and its ray-drop probability."""
+
+    actor_id: str
+    actor_class: ActorClass
+    size: FloatArray  # (3,) box length, width, height [m]
+    surfels: SurfelCloud  # box frame; empty for a template asset
+    template_intensity: float  # intensity of the template surface (used when surfels is empty)
+    drop_probability: float  # chance that a ray stopped by the asset returns nothing
+    num_points: int  # points aggregated from the log (before mirroring)
+    pass_probability: FloatArray | None = None  # (S,) chance that a ray crosses each surfel (glass); None: opaque
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.drop_probability <= 1.0:
+            raise ScenarioError(f"ActorAsset {self.actor_id}: drop_probability must lie in [0, 1]")
+        object.__setattr__(self, "actor_class", ActorClass(self.actor_class))
+        if self.pass_probability is not None:
+            passing = np.asarray(self.pass_probability, dtype=np.float64)
+            if passing.shape != (self.surfels.count,) or np.any((passing < 0.0) | (passing > 1.0)):
+                raise ScenarioError(
+                    f"ActorAsset {self.actor_id}: pass_probability needs one value in [0, 1] per surfel"
+                )
+            object.__setattr__(self, "pass_probability", passing)
+
+    @property
+    def is_template(self) -> bool:
+        return self.surfels.count == 0
+
+    def surface(self) -> Surface:
+        if self.is_template:
+            return template_surface(self.actor_class, self.size, self.template_intensity)
+        return self.surfels.surface()
+
+    def with_optics(self, drop_probability: float, pass_probability: FloatArray | None) -> ActorAsset:
+        """The asset with its ray drop and per-surfel pass probabilities set."""
+        return dataclasses.replace(self, drop_probability=drop_probability, pass_probability=pass_probability)
+
+
+def _fit_error(points: FloatArray, tree: cKDTree, max_distance: float) -> float:
+    """Mean distance [m] from points to their nearest reference point, capped at max_distance."""
+    distance, _ = tree.query(points, distance_upper_bound=max_distance)
+    return float(np.mean(np.minimum(distance, max_distance)))
+
+
+def _planar_icp(source: FloatArray, target: FloatArray, tree: cKDTree, max_distance: float) -> FloatArray | None:
+    """(4, 4) yaw-and-shift transform that best lays source (N, 3) onto target (M, 3), or None when it does not fit.
+
+    Point-to-point ICP restricted to a turn about z and a shift, as label noise is; a
+    correction beyond ICP_MAX_SHIFT / ICP_MAX_TURN is taken for a slide along a flat side
+    and refused.
+    """
+    rotation, shift = np.eye(3), np.zeros(3)
+    source = source[:: max(1, source.shape[0] // ICP_SOURCE_POINTS)]
+    for _ in range(ICP_ITERATIONS):
+        moved = source @ rotation.T + shift
+        distance, index = tree.query(moved, distance_upper_bound=max_distance)  # few points: no threads
+        matched = np.isfinite(distance)
+        if np.count_nonzero(matched) < ICP_MIN_MATCHES:
+            return None
+        mine, theirs = moved[matched], target[index[matched]]
+        mine_centre, their_centre = mine[:, :2].mean(axis=0), theirs[:, :2].mean(axis=0)
+        cross = (mine[:, :2] - mine_centre).T @ (theirs[:, :2] - their_centre)
+        angle = np.arctan2(cross[0, 1] - cross[1, 0], cross[0, 0] + cross[1, 1])
+        turn = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+        step = np.zeros(3)
+        step[:2] = their_centre - turn[:2, :2] @ mine_centre
+        step[2] = float(np.mean(theirs[:, 2] - mine[:, 2]))
+        rotation, shift = turn @ rotation, turn @ shift + step
+        if abs(angle) < 1e-4 and float(np.linalg.norm(step)) < 1e-3:
+            break  # converged
+    total_turn = abs(float(np.arctan2(rotation[1, 0], rotation[0, 0])))
+    if np.linalg.norm(shift) > ICP_MAX_SHIFT or total_turn > ICP_MAX_TURN:
+        return None
+    # Keep a correction only when it clearly fits better: partial views of one car otherwise
+    # pull each other along their flat sides and blur an asset whose labels were right.
+    if _fit_error(source @ rotation.T + shift, tree, max_distance) > ICP_GAIN * _fit_error(source, tree, max_distance):
+        return None
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = rotation, shift
+    return transform
+
+
+def align_frames(frames: list[PointSamples]) -> list[PointSamples]:
+    """The track's per-frame box-frame points, each moved onto the others (label noise removed).
+
+    Two passes: every frame onto the frame with most points, then every frame onto the
+    merged result of the first pass. Frames that do not fit stay where their label put
+    them. The corrections are then re-centred (their mean undone), so that the asset sits
+    in its box the way the labels place the actor on average, not the way one frame does.
+    """
+    if len(frames) < 2:
+        return frames
+    transforms = [np.eye(4) for _ in frames]
+    reference = max(frames, key=lambda frame: frame.count).xyz
+    for _ in range(2):
+        tree = cKDTree(reference)
+        for index, frame in enumerate(frames):
+            if frame.count < ICP_MIN_MATCHES:
+                continue
+            current = frame.transformed(transforms[index])
+            correction = _planar_icp(current.xyz, reference, tree, ICP_MAX_DISTANCE)
+            if correction is not None:
+                transforms[index] = correction @ transforms[index]
+        aligned = [frame.transformed(transform) for frame, transform in zip(frames, transforms, strict=True)]
+        everything = PointSamples.concatenate(aligned).xyz
+        reference = everything[:: max(1, everything.shape[0] // ICP_REFERENCE_POINTS)]
+    weights = np.array([frame.count for frame in frames], dtype=np.float64)
+    mean_turn = float(np.average([np.arctan2(t[1, 0], t[0, 0]) for t in transforms], weights=weights))
+    mean_shift = np.average([t[:3, 3] for t in transforms], axis=0, weights=weights)
+    centre = np.eye(4)
+    centre[:3, :3] = [
+        [np.cos(mean_turn), -np.sin(mean_turn), 0.0],
+        [np.sin(mean_turn), np.cos(mean_turn), 0.0],
+        [0, 0, 1],
+    ]
+    centre[:3, 3] = mean_shift
+    undo = np.linalg.inv(centre)
+    return [frame.transformed(undo @ transform) for frame, transform in zip(frames, transforms, strict=True)]
+
+
+def build_asset(
+    actor_id: str,
+    actor_class: ActorClass,
+    size: FloatArray,
+    samples: PointSamples,
+    *,
+    mirror: bool,
+    voxel_size: float,
+    size_scale: float,
+    max_half_size: float,
+    min_points: int,
+    template_intensity: float,
+) -> ActorAsset:
+    """An asset from the track's aggregated box-frame samples; the class template below `min_points` points."""
+    count = round(float(samples.weight.sum()))
+    if count < min_points:
+        surfels = SurfelCloud.empty()
+    else:
+        if mirror:
+            samples = PointSamples.concatenate([samples, samples.mirrored_y()])
+        surfels = surfels_from_samples(samples, voxel_size, size_scale, max_half_size)
+    return ActorAsset(
+        actor_id=actor_id,
+        actor_class=actor_class,
+        size=np.asarray(size, dtype=np.float64),
+        surfels=surfels,
+        template_intensity=template_intensity,
+        drop_probability=0.0,
+        num_points=count,
+    )

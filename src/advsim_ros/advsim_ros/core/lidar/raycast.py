@@ -1,0 +1,220 @@
+"""The one ray caster of advsim_ros: triangle surfaces with an intensity per triangle.
+
+Everything that renders LiDAR goes through ``SurfaceCaster``: the synthetic logs (meshes of
+a street scene), the background model and the actor assets of the re-simulation (surfels
+turned into triangles). Each surface lives in its own frame; a cast takes the surface's
+pose in the frame of the rays, so an actor asset is built once in its box frame and cast
+at any pose without moving its triangles. Open3D's RaycastingScene (Embree) does the work.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import open3d as o3d
+
+from advsim_ros.core.lidar.sensor import rotate
+from advsim_ros.core.types import FloatArray, IntArray, ScenarioError
+
+AnyFloatArray = npt.NDArray[np.floating[Any]]  # any float dtype on input; stored as float32
+AnyIntArray = npt.NDArray[np.integer[Any]]
+
+
+def as_tensor(array: np.ndarray) -> o3d.core.Tensor:
+    """An Open3D tensor sharing the memory of a C-contiguous numpy array."""
+    return o3d.core.Tensor.from_numpy(np.ascontiguousarray(array))
+
+
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """A triangle surface in its own frame; a ray that hits a triangle returns its intensity."""
+
+    vertices: AnyFloatArray  # (V, 3) [m], stored as float32
+    triangles: AnyIntArray  # (T, 3) vertex indices, stored as int32
+    intensity: AnyFloatArray  # (T,) what a hit on each triangle returns (the log's intensity unit), stored as float32
+
+    def __post_init__(self) -> None:
+        vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
+        triangles = np.ascontiguousarray(self.triangles, dtype=np.int32)
+        intensity = np.ascontiguousarray(self.intensity, dtype=np.float32)
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise ScenarioError(f"Surface vertices: expected shape (V, 3), got {vertices.shape}")
+        if triangles.ndim != 2 or triangles.shape[1] != 3:
+            raise ScenarioError(f"Surface triangles: expected shape (T, 3), got {triangles.shape}")
+        if intensity.shape != (triangles.shape[0],):
+            raise ScenarioError(f"Surface intensity: expected shape ({triangles.shape[0]},), got {intensity.shape}")
+        if triangles.size and (triangles.min() < 0 or triangles.max() >= vertices.shape[0]):
+            raise ScenarioError("Surface triangles: vertex index out of range")
+        if not np.all(np.isfinite(vertices)):
+            raise ScenarioError("Surface vertices: contain NaN or infinite values")
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "triangles", triangles)
+        object.__setattr__(self, "intensity", intensity)
+
+    @property
+    def num_triangles(self) -> int:
+        return int(self.triangles.shape[0])
+
+    def transformed(self, pose: FloatArray) -> Surface:
+        """The surface moved by the rigid transform `pose` (4, 4)."""
+        vertices = rotate(self.vertices, pose[:3, :3]) + pose[:3, 3]
+        return Surface(vertices=vertices, triangles=self.triangles, intensity=self.intensity)
+
+    @staticmethod
+    def concatenate(surfaces: Sequence[Surface]) -> Surface:
+        """One surface holding all of `surfaces` (same frame)."""
+        offsets = np.cumsum([0] + [surface.vertices.shape[0] for surface in surfaces])
+        return Surface(
+            vertices=np.concatenate([surface.vertices for surface in surfaces]).reshape(-1, 3),
+            triangles=np.concatenate(
+                [surface.triangles + offset for surface, offset in zip(surfaces, offsets, strict=False)]
+            ).reshape(-1, 3),
+            intensity=np.concatenate([surface.intensity for surface in surfaces]),
+        )
+
+
+def cuboid_surface(lower: npt.ArrayLike, upper: npt.ArrayLike, intensity: float) -> Surface:
+    """The six faces of the axis-aligned box lower..upper (3,) [m] as 12 triangles."""
+    low = np.asarray(lower, dtype=np.float64)
+    high = np.asarray(upper, dtype=np.float64)
+    if low.shape != (3,) or high.shape != (3,) or np.any(high <= low):
+        raise ScenarioError(f"cuboid_surface: need lower < upper, got {low} and {high}")
+    corners = np.array([[(high if (index >> axis) & 1 else low)[axis] for axis in range(3)] for index in range(8)])
+    faces = np.array(
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]], dtype=np.int32
+    )
+    triangles = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
+    return Surface(vertices=corners, triangles=triangles, intensity=np.full(12, intensity))
+
+
+def surfels_to_surface(
+    centers: FloatArray, normals: FloatArray, half_sizes: FloatArray, intensity: FloatArray
+) -> Surface:
+    """Square surfels (disc stand-ins) as two triangles each.
+
+    centers (S, 3) [m], normals (S, 3) unit, half_sizes (S,) half the square's side [m],
+    intensity (S,). A ray hits either side of a triangle.
+    """
+    count = centers.shape[0]
+    if normals.shape != (count, 3) or half_sizes.shape != (count,) or intensity.shape != (count,):
+        raise ScenarioError("surfels_to_surface: centers, normals, half_sizes and intensity disagree in length")
+    # Any vector not parallel to the normal gives the first tangent.
+    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+    tangent_u = np.cross(normals, helper)
+    tangent_u /= np.maximum(np.linalg.norm(tangent_u, axis=1, keepdims=True), 1e-12)
+    tangent_v = np.cross(normals, tangent_u)
+    u = tangent_u * half_sizes[:, None]
+    v = tangent_v * half_sizes[:, None]
+    vertices = np.stack([centers - u - v, centers + u - v, centers + u + v, centers - u + v], axis=1).reshape(-1, 3)
+    base = 4 * np.arange(count, dtype=np.int32)[:, None]
+    triangles = np.concatenate([base + np.array([[0, 1, 2]]), base + np.array([[0, 2, 3]])], axis=1).reshape(-1, 3)
+    return Surface(vertices=vertices, triangles=triangles, intensity=np.repeat(intensity, 2))
+
+
+@dataclass(frozen=True, eq=False)
+class RayHits:
+    """Where rays hit: range along the unit direction, the hit triangle's intensity, which surface."""
+
+    ranges: FloatArray  # (N,) [m]; inf where the ray hits nothing
+    intensity: FloatArray  # (N,) intensity of the hit surface; 0 where the ray hits nothing
+    source: IntArray  # (N,) index of the surface hit (see cast_nearest); -1 where the ray hits nothing
+
+    @staticmethod
+    def misses(count: int) -> RayHits:
+        return RayHits(ranges=np.full(count, np.inf), intensity=np.zeros(count), source=np.full(count, -1))
+
+    def nearest(self, other: RayHits) -> RayHits:
+        """Per ray, the nearer of the two hits (the occlusion-correct merge)."""
+        closer = other.ranges < self.ranges
+        return RayHits(
+            ranges=np.where(closer, other.ranges, self.ranges),
+            intensity=np.where(closer, other.intensity, self.intensity),
+            source=np.where(closer, other.source, self.source),
+        )
+
+
+class SurfaceCaster:
+    """A surface ready for ray casting (the acceleration structure is built on construction)."""
+
+    def __init__(self, surface: Surface) -> None:
+        self.surface = surface
+        self._scene = o3d.t.geometry.RaycastingScene()
+        if surface.num_triangles:
+            # The tensors share memory with these arrays: keep them alive as long as the scene.
+            self._vertices = np.ascontiguousarray(surface.vertices, dtype=np.float32)
+            self._triangles = np.ascontiguousarray(surface.triangles, dtype=np.uint32)
+            self._scene.add_triangles(as_tensor(self._vertices), as_tensor(self._triangles))
+            self._scene.cast_rays(as_tensor(np.array([[0, 0, 0, 0, 0, 1]], dtype=np.float32)))  # commit now
+
+    def cast(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None = None) -> RayHits:
+        """Hits of rays from origins ((3,) or (N, 3)) along unit directions (N, 3) in the frame F.
+
+        `pose` (4, 4) is T_F_surface, the surface's pose in F (identity when None).
+        """
+        count = directions.shape[0]
+        if count == 0 or self.surface.num_triangles == 0:
+            return RayHits.misses(count)
+        answer = self._scene.cast_rays(as_tensor(self._rays(origins, directions, pose)))
+        ranges = answer["t_hit"].numpy().astype(np.float64)
+        hit = np.isfinite(ranges)
+        primitive = answer["primitive_ids"].numpy()
+        intensity = np.zeros(count)
+        intensity[hit] = self.surface.intensity[primitive[hit]]
+        return RayHits(ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1))
+
+    def cast_all(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None = None) -> Intersections:
+        """Every crossing of the rays (as in ``cast``) with the surface, not only the first."""
+        count = directions.shape[0]
+        if count == 0 or self.surface.num_triangles == 0:
+            empty = np.zeros(0, dtype=np.int64)
+            return Intersections(ray_ids=empty, ranges=np.zeros(0), triangles=empty)
+        rays = self._rays(origins, directions, pose)
+        answer = self._scene.list_intersections(as_tensor(rays))
+        ray_ids = answer["ray_ids"].numpy().astype(np.int64)
+        ranges = answer["t_hit"].numpy().astype(np.float64)
+        triangles = answer["primitive_ids"].numpy().astype(np.int64)
+        order = np.lexsort((ranges, ray_ids))
+        return Intersections(ray_ids=ray_ids[order], ranges=ranges[order], triangles=triangles[order])
+
+    def _rays(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None) -> np.ndarray:
+        """(N, 6) float32 rays in the surface's frame."""
+        count = directions.shape[0]
+        origin = np.broadcast_to(np.asarray(origins, dtype=np.float64), (count, 3))
+        if pose is not None:
+            rotation_t = pose[:3, :3].T
+            origin = rotate(origin - pose[:3, 3], rotation_t)
+            directions = rotate(directions, rotation_t)
+        return np.concatenate([origin, directions], axis=1).astype(np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class Intersections:
+    """Every crossing of rays with a surface, sorted by ray and then by range."""
+
+    ray_ids: IntArray  # (K,) index of the ray
+    ranges: FloatArray  # (K,) [m] along the ray
+    triangles: IntArray  # (K,) index of the triangle crossed
+
+
+@dataclass(frozen=True, eq=False)
+class PlacedSurface:
+    """A caster and its pose (4, 4) T_F_surface in the frame F of the rays (None: identity)."""
+
+    caster: SurfaceCaster
+    pose: FloatArray | None = None
+
+
+def cast_nearest(origins: npt.ArrayLike, directions: FloatArray, placed: Sequence[PlacedSurface]) -> RayHits:
+    """The nearest hit over several placed surfaces, per ray (occlusion between them is exact).
+
+    ``source`` of the answer is the index in `placed` of the surface each ray hit.
+    """
+    hits = RayHits.misses(directions.shape[0])
+    for index, item in enumerate(placed):
+        found = item.caster.cast(origins, directions, item.pose)
+        hits = hits.nearest(RayHits(found.ranges, found.intensity, np.where(found.source >= 0, index, -1)))
+    return hits
