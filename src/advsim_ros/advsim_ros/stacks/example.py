@@ -20,6 +20,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header
 
 from advsim_ros.io.pointcloud import cloud_to_points
 
@@ -28,19 +29,31 @@ class ExampleStack(Node):
     def __init__(self, name: str = "example_stack") -> None:
         super().__init__(name)
         self.sweeps = 0
-        self.odometry: Odometry | None = None
+        # sweeps and odometry come on different topics, in either order: pair them by stamp
+        self.odometry: dict[int, Odometry] = {}
+        self.pending: dict[int, PointCloud2] = {}
         self.plan_publisher = self.create_publisher(PathMsg, "/planning/trajectory", 10)
         self.create_subscription(Odometry, "/ego/odom", self.on_odometry, 10)
         self.create_subscription(PointCloud2, "/sensor/lidar/points", self.on_sweep, qos_profile_sensor_data)
 
     def on_odometry(self, message: Odometry) -> None:
-        self.odometry = message
+        stamp = _stamp_ns(message.header)
+        self.odometry[stamp] = message
+        if stamp in self.pending:
+            self.plan(self.pending.pop(stamp), message)
+        for old in [s for s in self.odometry if s < stamp - 2_000_000_000]:  # keep 2 s
+            del self.odometry[old]
 
     def on_sweep(self, cloud: PointCloud2) -> None:
         self.sweeps += 1
-        odometry = self.odometry
-        if odometry is None:
-            return
+        stamp = _stamp_ns(cloud.header)
+        if stamp in self.odometry:
+            self.plan(cloud, self.odometry[stamp])
+        else:
+            self.pending = {s: c for s, c in self.pending.items() if s > stamp - 2_000_000_000}
+            self.pending[stamp] = cloud
+
+    def plan(self, cloud: PointCloud2, odometry: Odometry) -> None:
         pose = odometry.pose.pose
         yaw = 2.0 * math.atan2(pose.orientation.z, pose.orientation.w)
         speed = math.hypot(odometry.twist.twist.linear.x, odometry.twist.twist.linear.y)
@@ -52,7 +65,7 @@ class ExampleStack(Node):
         path = PathMsg()
         path.header = cloud.header
         path.header.frame_id = odometry.header.frame_id
-        stamp_ns = cloud.header.stamp.sec * 1_000_000_000 + cloud.header.stamp.nanosec
+        stamp_ns = _stamp_ns(cloud.header)
         for step in range(1, 51):
             t = 0.1 * step
             item = PoseStamped()
@@ -64,6 +77,10 @@ class ExampleStack(Node):
             item.pose.orientation = pose.orientation
             path.poses.append(item)
         self.plan_publisher.publish(path)
+
+
+def _stamp_ns(header: Header) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 def main() -> None:
