@@ -11,15 +11,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 from tqdm import tqdm
 
 from advsim_ros import __version__
 from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
 from advsim_ros.core.search.registry import ALGORITHM_NAMES
-from advsim_ros.io.bag import write_scenario_bag
-from advsim_ros.io.synthetic import generate_synthetic_log
+from advsim_ros.io.synthetic import write_synthetic_bag
 from advsim_ros.report import recorded_score
 
 
@@ -112,7 +110,7 @@ def _run_synth(args: argparse.Namespace) -> int:
     import time
 
     from advsim_ros.io.bag import load_bag_config
-    from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
+    from advsim_ros.io.synthetic import SyntheticConfig
 
     started = time.perf_counter()
     config = SyntheticConfig() if args.duration is None else SyntheticConfig(duration=args.duration)
@@ -343,8 +341,7 @@ def _run_demo(args: argparse.Namespace) -> int:
     bag = out / f"synthetic_log_seed{args.seed}"
     if not (bag / "metadata.yaml").exists():
         print(f"demo: synthesizing a street log (seed {args.seed}) into {bag}")
-        log = generate_synthetic_log(np.random.default_rng(args.seed), scenario_id=f"synthetic_seed{args.seed}")
-        write_scenario_bag(log.scenario, bag, source=f"synthetic/seed={args.seed}")
+        write_synthetic_bag(bag, seed=args.seed)
     options = AttackOptions(
         bag=bag,
         out_dir=out / "attack",

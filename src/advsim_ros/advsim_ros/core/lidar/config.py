@@ -22,10 +22,10 @@ class ResimConfig:
     background_voxel: float = 0.08  # background thinning grid [m]
     background_max_range: float = 60.0  # farther returns are left out of the background [m]
     background_sweep_stride: int = 1  # use every n-th sweep for the background
-    carve_sweep_stride: int = 5  # every n-th sweep checks the background for things that moved away
+    carve_sweep_stride: int = 8  # every n-th sweep checks the background for things that moved away
     carve_range: float = 40.0  # surfels farther than this from a checking sweep's sensor get no vote [m]
     background_max_half_size: float = 0.25  # cap on a background surfel's half side [m]
-    surfel_size_scale: float = 0.75  # surfel half side / local point spacing
+    surfel_size_scale: float = 0.85  # surfel half side / local point spacing (0.75 leaves ~1 % of rays through a plane)
     ground_cell: float = 0.5  # ground height grid cell [m]
     ground_fill_radius: float = 3.0  # holes in the ground this close to seen ground get filled [m]
     ground_normal_min_z: float = 0.9  # surfels with |normal z| at least this are ground candidates

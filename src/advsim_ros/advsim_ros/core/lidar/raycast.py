@@ -122,10 +122,16 @@ class RayHits:
     ranges: FloatArray  # (N,) [m]; inf where the ray hits nothing
     intensity: FloatArray  # (N,) intensity of the hit surface; 0 where the ray hits nothing
     source: IntArray  # (N,) index of the surface hit (see cast_nearest); -1 where the ray hits nothing
+    triangles: IntArray | None = None  # (N,) triangle hit within its surface; -1 where nothing (None: not kept)
 
     @staticmethod
     def misses(count: int) -> RayHits:
-        return RayHits(ranges=np.full(count, np.inf), intensity=np.zeros(count), source=np.full(count, -1))
+        return RayHits(
+            ranges=np.full(count, np.inf),
+            intensity=np.zeros(count),
+            source=np.full(count, -1),
+            triangles=np.full(count, -1, dtype=np.int64),
+        )
 
     def nearest(self, other: RayHits) -> RayHits:
         """Per ray, the nearer of the two hits (the occlusion-correct merge)."""
@@ -161,10 +167,12 @@ class SurfaceCaster:
         answer = self._scene.cast_rays(as_tensor(self._rays(origins, directions, pose)))
         ranges = answer["t_hit"].numpy().astype(np.float64)
         hit = np.isfinite(ranges)
-        primitive = answer["primitive_ids"].numpy()
+        primitive = answer["primitive_ids"].numpy().astype(np.int64)
         intensity = np.zeros(count)
         intensity[hit] = self.surface.intensity[primitive[hit]]
-        return RayHits(ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1))
+        return RayHits(
+            ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1), triangles=np.where(hit, primitive, -1)
+        )
 
     def cast_all(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None = None) -> Intersections:
         """Every crossing of the rays (as in ``cast``) with the surface, not only the first."""

@@ -70,17 +70,19 @@ from advsim_ros.core.types import (
     Sweep,
 )
 
-MODEL_VERSION = "resim-model-1"  # bump when the built model's content changes meaning
+MODEL_VERSION = "resim-model-6"  # bump when the built model's content changes meaning
 _THIN_CHUNK_SWEEPS = 16  # background points are thinned every this many sweeps to bound memory
 _RETURN_CLEARANCE = 0.15  # logged returns this close above a box's bottom are not counted as the actor's [m]
-_MIN_DROP_RAYS = 30.0  # an asset's ray drop is estimated from at least this many rays it stops
+_MIN_DROP_RAYS = 30  # an asset's ray drop is estimated from at least this many re-simulated returns
+_CALIBRATION_SEED = 20210601  # the ray-drop calibration's own random stream (the build stays deterministic)
 _GROUND_RING = 1.5  # width of the ring around an actor where its ground height is measured [m]
 _GROUND_SEARCH = 0.5  # the ground around an actor lies within this of its box bottom [m]
 _VOLUME_CELL = 0.1  # grid cell of the volume any actor ever occupied [m]
 _STATIC_CLEARANCE = 0.15  # that volume starts this far above the boxes' bottoms (labels sit a little low or high) [m]
 _SURFACE_BAND = 0.1  # a logged return within this (+ 1 % of its range) of a surfel ended on it [m]
 _PASS_PRIOR_STOPS = 1.0  # a surfel no logged ray crossed or ended on counts as opaque
-_OCCLUSION_GAP = 0.5  # a logged return this much nearer than the asset means the asset was hidden [m]
+_MAX_PASSES = 8  # a ray is walked through at most this many surfels it passes (glass)
+_PASS_STEP = 1e-3  # a passing ray goes on from this far beyond the surfel it crossed [m]
 _MERGE_EPSILON = 1e-3  # an inserted hit must be nearer than the current return by this much [m]
 
 
@@ -559,7 +561,10 @@ class ResimModel:
         self.assets = assets
         self.config = config
         self.background_caster = SurfaceCaster(background.surfels.surface())
-        self._asset_casters: dict[str, SurfaceCaster] = {}
+        # Every asset's acceleration structure is built now, not on a query's first sweep.
+        self._asset_casters: dict[str, SurfaceCaster] = {
+            key: SurfaceCaster(asset.surface()) for key, asset in assets.items()
+        }
         self._geometries: OrderedDict[tuple[int, int, int], SweepGeometry] = OrderedDict()
 
     # ----- building and caching -------------------------------------------------------------
@@ -599,6 +604,7 @@ class ResimModel:
         arrays["sensor/source"] = np.array(self.beam_rows.source)
         arrays["sensor/ring_to_row"] = self.beam_rows.ring_to_row
         arrays["sensor/beam_heights"] = self.beam_rows.beam_heights
+        arrays["sensor/scan_start"] = np.array(self.beam_rows.scan_start)
         arrays["assets/ids"] = np.array(list(self.assets), dtype=str)
         for key, asset in self.assets.items():
             arrays.update(asset.surfels.to_arrays(f"asset/{key}/"))
@@ -624,6 +630,7 @@ class ResimModel:
             source=str(arrays["sensor/source"]),
             ring_to_row=arrays["sensor/ring_to_row"],
             beam_heights=arrays["sensor/beam_heights"],
+            scan_start=float(arrays["sensor/scan_start"]),
         )
         assets: dict[str, ActorAsset] = {}
         for key in (str(value) for value in arrays["assets/ids"]):
@@ -893,20 +900,30 @@ class ResimModel:
         through with its pass probability (glass); misses are inf."""
         asset = self.assets[actor_id]
         caster = self.asset_caster(actor_id)
-        if asset.pass_probability is None:
-            return caster.cast(origins, directions, pose)
-        crossings = caster.cast_all(origins, directions, pose)
-        surfel = crossings.triangles // 2  # two triangles per surfel
-        # A ray through a surfel's diagonal crosses both triangles: count the surfel once.
-        repeat = np.zeros(surfel.shape[0], dtype=bool)
-        repeat[1:] = (crossings.ray_ids[1:] == crossings.ray_ids[:-1]) & (surfel[1:] == surfel[:-1])
-        stops = np.flatnonzero(~repeat & (rng.random(surfel.shape[0]) >= asset.pass_probability[surfel]))
-        rays, first = np.unique(crossings.ray_ids[stops], return_index=True)
-        chosen = stops[first]
-        hits = RayHits.misses(directions.shape[0])
-        hits.ranges[rays] = crossings.ranges[chosen]
-        hits.intensity[rays] = caster.surface.intensity[crossings.triangles[chosen]]
-        hits.source[rays] = 0
+        hits = caster.cast(origins, directions, pose)
+        passing = asset.pass_probability
+        if passing is None:
+            return hits
+        # Walk each ray through the surfels it crosses: only rays that pass a surfel are cast again,
+        # from just beyond it (which also skips the twin triangle of the same surfel).
+        start = np.zeros(directions.shape[0])  # where the current cast begins along the ray [m]
+        active = np.arange(directions.shape[0])
+        for _ in range(_MAX_PASSES):
+            assert hits.triangles is not None
+            surfel = np.maximum(hits.triangles[active], 0) // 2
+            passes = np.isfinite(hits.ranges[active]) & (rng.random(active.shape[0]) < passing[surfel])
+            if not np.any(passes):
+                break
+            active = active[passes]
+            start[active] = hits.ranges[active] + _PASS_STEP
+            further = caster.cast(origins[active] + directions[active] * start[active, None], directions[active], pose)
+            assert further.triangles is not None
+            found = np.isfinite(further.ranges)
+            hits.ranges[active] = np.where(found, start[active] + further.ranges, np.inf)
+            hits.intensity[active] = further.intensity
+            hits.source[active] = further.source
+            hits.triangles[active] = further.triangles
+            active = active[found]
         return hits
 
     def _in_range(self, ranges: FloatArray) -> BoolArray:
@@ -916,65 +933,76 @@ class ResimModel:
     # ----- ray drop estimation ----------------------------------------------------------------
 
     def _estimate_optics(self, scenario: Scenario, log_points: _LogPoints) -> dict[str, ActorAsset]:
-        """Each observed asset's ray drop and per-surfel pass probabilities, from the log at the logged poses.
+        """Each observed asset's per-surfel pass probabilities and ray drop, from the log at the logged poses.
 
         A surfel that logged rays crossed to return from farther behind it (through a car's
-        windows) lets rays pass. The ray drop then makes the asset, cast at its logged
-        poses the way a re-simulation casts it, return as many points as the actor did:
-        1 - (logged returns) / (expected rays the asset stops), both inside the actor's box
-        grown by box_margin. Template assets take their
-        class's median drop and are opaque.
+        windows) lets rays pass. The ray drop then makes the asset, re-inserted at its logged
+        poses by this very re-simulation, return as many points inside its grown box as the
+        actor did: 1 - (logged returns) / (re-simulated returns without drop). Template assets
+        take their class's median drop and are opaque.
         """
         config = self.config
-        estimated: dict[str, ActorAsset] = {}
-        measured: set[str] = set()
-        by_class: dict[ActorClass, list[float]] = {}
+        views: dict[str, list[Sweep]] = {}
         for actor in scenario.actors:
             asset = self.assets[actor.actor_id]
             frames = log_points.actor_frames[actor.actor_id]
             if asset.is_template or not frames:
                 continue
             picks = np.unique(np.linspace(0, len(frames) - 1, min(config.drop_estimate_frames, len(frames))).round())
-            returns, stops = 0, 0.0
+            views[actor.actor_id] = [scenario.sweeps[frames[int(pick)]] for pick in picks]
             passed = np.zeros(asset.surfels.count)
             stopped = np.zeros(asset.surfels.count)
-            views = []
-            for pick in picks.astype(int):
-                sweep = scenario.sweeps[frames[pick]]
-                pose = track_pose_at(actor, sweep.stamp_ns)
-                assert pose is not None
-                views.append((sweep, invert_rigid(sweep.sensor_pose) @ pose))
-            for sweep, sensor_pose in views:
-                self._count_crossings(sweep, actor, sensor_pose, passed, stopped)
-            pass_probability = passed / (passed + stopped + _PASS_PRIOR_STOPS)
-            asset = asset.with_optics(asset.drop_probability, pass_probability)
-            self.assets[actor.actor_id] = asset
-            for sweep, sensor_pose in views:
-                count_returns, count_stops = self._returns_and_stops(sweep, actor, sensor_pose)
+            for sweep in views[actor.actor_id]:
+                self._count_crossings(sweep, actor, self._sensor_pose_of(actor, sweep), passed, stopped)
+            self.assets[actor.actor_id] = asset.with_optics(0.0, passed / (passed + stopped + _PASS_PRIOR_STOPS))
+        by_class: dict[ActorClass, list[float]] = {}
+        measured: set[str] = set()
+        for actor in scenario.actors:
+            if actor.actor_id not in views:
+                continue
+            returns = resimulated = 0
+            for index, sweep in enumerate(views[actor.actor_id]):
+                count_returns, count_resimulated = self._returns_and_reinserted(sweep, actor, scenario.actors, index)
                 returns += count_returns
-                stops += count_stops
-            if stops < _MIN_DROP_RAYS:
-                estimated[actor.actor_id] = asset
-                continue  # too few rays to tell the drop: the class value below
-            probability = float(np.clip(1.0 - returns / stops, 0.0, config.max_drop_probability))
-            estimated[actor.actor_id] = asset.with_optics(probability, pass_probability)
+                resimulated += count_resimulated
+            if resimulated < _MIN_DROP_RAYS:
+                continue  # too few returns to tell the drop: the class value below
+            probability = float(np.clip(1.0 - returns / resimulated, 0.0, config.max_drop_probability))
+            asset = self.assets[actor.actor_id]
+            self.assets[actor.actor_id] = asset.with_optics(probability, asset.pass_probability)
             measured.add(actor.actor_id)
             by_class.setdefault(asset.actor_class, []).append(probability)
         for actor in scenario.actors:
             if actor.actor_id in measured:
                 continue
-            asset = estimated.get(actor.actor_id, self.assets[actor.actor_id])
+            asset = self.assets[actor.actor_id]
             known = by_class.get(asset.actor_class)
             probability = float(np.median(known)) if known else config.default_drop_probability
-            estimated[actor.actor_id] = asset.with_optics(probability, asset.pass_probability)
-        return estimated
+            self.assets[actor.actor_id] = asset.with_optics(probability, asset.pass_probability)
+        return self.assets
 
-    def _window_cells(self, actor: ActorTrack, pose: FloatArray) -> tuple[AngularWindow, IntArray, IntArray]:
-        """The angular window of an actor's box at `pose` and the rows and columns of its cells."""
+    @staticmethod
+    def _sensor_pose_of(actor: ActorTrack, sweep: Sweep) -> FloatArray:
+        """T_sensor_box of an actor at a sweep it was labelled in."""
+        pose = track_pose_at(actor, sweep.stamp_ns)
+        assert pose is not None
+        return invert_rigid(sweep.sensor_pose) @ pose
+
+    def _returns_and_reinserted(
+        self, sweep: Sweep, actor: ActorTrack, tracks: Sequence[ActorTrack], index: int
+    ) -> tuple[int, int]:
+        """The actor's logged returns in its grown box, and its returns there when re-inserted where it was."""
+        pose = self._sensor_pose_of(actor, sweep)
+        region = actor_region(actor.size, self.config.box_margin, _RETURN_CLEARANCE)
+        rng = np.random.default_rng([_CALIBRATION_SEED, index])
+        points = self.resimulate(sweep, tracks, tracks, rng=rng, moved=[actor.actor_id])
+        logged = int(np.count_nonzero(inside(to_box_frame(xyz_of(sweep.points), pose), region)))
+        return logged, int(np.count_nonzero(inside(to_box_frame(xyz_of(points), pose), region)))
+
+    def _window(self, actor: ActorTrack, pose: FloatArray) -> AngularWindow:
+        """The angular window of an actor's grown box at `pose` (T_sensor_box)."""
         config = self.config
-        window = AngularWindow.of_region(pose, removal_region(actor.size, config.removal_margin), config.window_margin)
-        rows, columns = window.rows(self.sensor), window.columns(self.sensor)
-        return window, np.repeat(rows, columns.shape[0]), np.tile(columns, rows.shape[0])
+        return AngularWindow.of_region(pose, removal_region(actor.size, config.removal_margin), config.window_margin)
 
     def _count_crossings(
         self, sweep: Sweep, actor: ActorTrack, pose: FloatArray, passed: FloatArray, stopped: FloatArray
@@ -982,7 +1010,7 @@ class ResimModel:
         """Add, per surfel, the logged rays that went through it and the ones that ended on it."""
         geometry = self.geometry(sweep.points, sweep.stamp_ns)
         table = _RayTable(sweep.points, geometry, self.beam_rows)
-        window, _, _ = self._window_cells(actor, pose)
+        window = self._window(actor, pose)
         logged, _ = table.window_candidates(window)
         origins, directions = table.logged_rays(logged)
         crossings = self.asset_caster(actor.actor_id).cast_all(origins, directions, pose)
@@ -996,52 +1024,6 @@ class ResimModel:
         beyond = (crossings.ranges < measured - _SURFACE_BAND - 0.01 * measured) & (apart > _SURFACE_BAND)
         np.add.at(passed, surfel[beyond], 1.0)
         np.add.at(stopped, surfel[~beyond & (crossings.ranges <= measured + _SURFACE_BAND)], 1.0)
-
-    def _returns_and_stops(self, sweep: Sweep, actor: ActorTrack, pose: FloatArray) -> tuple[int, float]:
-        """The actor's logged returns in its box, and how many rays its asset would stop there (expected).
-
-        The rays are the ones a re-simulation casts (the sweep's rays through the box and
-        the cells with no return); a ray whose logged return lies well in front of the
-        asset saw an occluder and does not count.
-        """
-        config = self.config
-        geometry = self.geometry(sweep.points, sweep.stamp_ns)
-        table = _RayTable(sweep.points, geometry, self.beam_rows)
-        window, _, _ = self._window_cells(actor, pose)
-        region = removal_region(actor.size, config.removal_margin)
-        logged, added = table.window_candidates(window)
-        rows, columns = table.uncovered_cells(window, logged, added, config.coverage_tolerance)
-        cell_origins, cell_directions = self.beam_rows.cell_rays(rows, columns)
-        through = rays_hit_region(cell_origins, cell_directions, pose, region)
-        origins, directions = table.logged_rays(logged)
-        origins = np.concatenate([origins, cell_origins[through]])
-        directions = np.concatenate([directions, cell_directions[through]])
-        measured = np.concatenate([geometry.beam_ranges[logged], np.full(np.count_nonzero(through), np.inf)])
-        crossings = self.asset_caster(actor.actor_id).cast_all(origins, directions, pose)
-        passing = self.assets[actor.actor_id].pass_probability
-        surfel = crossings.triangles // 2
-        rays = crossings.ray_ids
-        repeat = np.zeros(surfel.shape[0], dtype=bool)
-        repeat[1:] = (rays[1:] == rays[:-1]) & (surfel[1:] == surfel[:-1])
-        first = np.full(measured.shape[0], np.inf)
-        np.minimum.at(first, rays, crossings.ranges)
-        visible = ~(measured < first - _OCCLUSION_GAP)  # rays whose logged return is not an occluder in front
-        counted = ~repeat & visible[rays]
-        rays, ranges, surfel = rays[counted], crossings.ranges[counted], surfel[counted]
-        # Chance that a ray stops at each crossing: the surfels before it let it through, this one does not.
-        letting = passing[surfel] if passing is not None else np.zeros(surfel.shape[0])
-        log_through = np.log(np.clip(letting, 1e-12, 1.0))
-        running = np.cumsum(log_through)
-        starts = np.ones(rays.shape[0], dtype=bool)
-        starts[1:] = rays[1:] != rays[:-1]
-        segment_start = np.maximum.accumulate(np.where(starts, np.arange(rays.shape[0]), 0))
-        before = (running - log_through) - (running - log_through)[segment_start]
-        stop_chance = (1.0 - letting) * np.exp(before)
-        region = actor_region(actor.size, config.box_margin, _RETURN_CLEARANCE)
-        ends = origins[rays] + directions[rays] * ranges[:, None]
-        stops = float(np.sum(stop_chance[inside(to_box_frame(ends, pose), region)]))
-        own = inside(to_box_frame(geometry.spherical.xyz[logged], pose), region)
-        return int(np.count_nonzero(own)), stops
 
 
 def _build_assets(scenario: Scenario, log_points: _LogPoints, config: ResimConfig) -> dict[str, ActorAsset]:
@@ -1072,18 +1054,6 @@ def _build_assets(scenario: Scenario, log_points: _LogPoints, config: ResimConfi
     return assets
 
 
-def resimulate_scenario_sweep(
-    model: ResimModel,
-    sweep: Sweep,
-    original_tracks: Sequence[ActorTrack],
-    perturbed_tracks: Sequence[ActorTrack],
-    rng: np.random.Generator,
-) -> Sweep:
-    """A Sweep of the perturbed world (same stamp, frame and pose as the logged one)."""
-    points = model.resimulate(sweep, original_tracks, perturbed_tracks, rng=rng)
-    return Sweep(stamp_ns=sweep.stamp_ns, frame_id=sweep.frame_id, points=points, sensor_pose=sweep.sensor_pose)
-
-
 __all__ = [
     "ActorResimStats",
     "ResimError",
@@ -1091,6 +1061,5 @@ __all__ = [
     "ResimStats",
     "SweepGeometry",
     "collect_log_points",
-    "resimulate_scenario_sweep",
     "scenario_digest",
 ]

@@ -28,7 +28,7 @@ RING_FIELD = "ring"
 ESTIMATION_NEAREST = 2.0  # returns nearer than this (planar) are left out of the beam fits [m]
 ESTIMATION_MAX_HEIGHT = 0.5  # a fitted beam origin farther than this from the sensor origin is not believed [m]
 _ORDER_AGREEMENT = 0.75  # share of sampled sweeps that must show the same number of scan-order turns
-_MIN_SEGMENT_FRACTION = 0.1  # scan-order segments smaller than this share of the median are split-offs
+_MIN_SEGMENT_FRACTION = 0.1  # a last turn smaller than this share of the median turn is a split-off
 _HISTOGRAM_BIN = np.deg2rad(0.01)  # elevation histogram bin for sweeps without ring or order [rad]
 _MIN_BEAM_SEPARATION = np.deg2rad(0.15)  # closest two beams may be when found from the histogram [rad]
 
@@ -100,28 +100,61 @@ def nearest_beam_rows(elevations: npt.ArrayLike, beam_elevations: FloatArray) ->
     return rows
 
 
-def scan_order_segments(azimuths: FloatArray) -> IntArray | None:
+def scan_order_segments(
+    azimuths: FloatArray, scan_start: float, valid: npt.NDArray[np.bool_] | None = None
+) -> IntArray | None:
     """Beam index of each point from the firing order, or None when the order shows no turns.
 
-    A new beam starts wherever the counter-clockwise sweep angle (relative to the first
-    point) jumps back by more than half a turn; split-offs of a few points at a turn's end
-    are merged into the turn before.
+    The points are taken to sweep counter-clockwise, one full turn per beam, each turn
+    starting at `scan_start` [rad]: the azimuth is unwrapped along the point order and
+    every full turn past the start is a new beam. A few stray points of a last, barely
+    begun turn join the turn before.
     """
+    if valid is not None and not np.all(valid):
+        # Placeholders for missing returns have no azimuth: they take the beam of the return before them.
+        kept = np.flatnonzero(valid)
+        inner = scan_order_segments(azimuths[kept], scan_start)
+        if inner is None or kept.size == 0:
+            return None
+        position = np.clip(np.searchsorted(kept, np.arange(azimuths.shape[0]), side="right") - 1, 0, None)
+        placed: IntArray = inner[position]
+        return placed
     if azimuths.shape[0] < 2:
         return None
-    phase = np.mod(azimuths - azimuths[0], 2.0 * np.pi)
-    starts = np.flatnonzero(np.diff(phase) < -np.pi) + 1
-    if starts.size == 0:
+    # Signed steps: firing jitter may step back a little; a gap without returns is less than half a turn.
+    steps = np.mod(np.diff(azimuths) + np.pi, 2.0 * np.pi) - np.pi
+    unwrapped = azimuths[0] + np.concatenate([[0.0], np.cumsum(steps)])
+    base = scan_start + 2.0 * np.pi * np.floor((unwrapped[0] - scan_start) / (2.0 * np.pi))
+    labels: IntArray = np.maximum(np.floor((unwrapped - base) / (2.0 * np.pi)).astype(np.int64), 0)
+    last = int(labels.max())
+    if last == 0:
         return None
-    bounds = np.concatenate([[0], starts, [azimuths.shape[0]]])
-    sizes = np.diff(bounds)
-    keep = sizes >= _MIN_SEGMENT_FRACTION * np.median(sizes)
-    keep[0] = True
-    segment_starts = bounds[:-1][keep]
-    labels = np.zeros(azimuths.shape[0], dtype=np.int64)
-    labels[segment_starts[1:]] = 1
-    result: IntArray = np.cumsum(labels)
-    return result
+    sizes = np.bincount(labels)
+    if sizes[last] < _MIN_SEGMENT_FRACTION * np.median(sizes):
+        labels[labels == last] = last - 1
+    return labels
+
+
+def estimate_scan_start(azimuths: FloatArray, elevations: FloatArray) -> float:
+    """The start angle [rad] of the sensor's turns: the one that keeps each turn's elevations tightest.
+
+    A wrong start lends the first points of every turn to the turn before, whose beam
+    points elsewhere; the within-turn spread of elevations is smallest at the true start.
+    """
+
+    def spread(start: float) -> float:
+        labels = scan_order_segments(azimuths, start)
+        if labels is None:
+            return np.inf
+        count = np.bincount(labels).astype(np.float64)
+        total = np.bincount(labels, weights=elevations)
+        squares = np.bincount(labels, weights=elevations * elevations)
+        return float(np.sum(squares - total * total / np.maximum(count, 1.0)))
+
+    coarse = np.deg2rad(np.arange(-180.0, 180.0, 10.0))
+    best = float(coarse[int(np.argmin([spread(float(start)) for start in coarse]))])
+    fine = best + np.deg2rad(np.arange(-10.0, 10.0, 0.25))
+    return float(fine[int(np.argmin([spread(float(start)) for start in fine]))])
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,6 +165,7 @@ class BeamRows:
     source: str  # "ring_field", "scan_order" or "elevation": where the rows come from
     ring_to_row: IntArray  # (R,) row of each ring value / scan-order segment; -1 for a ring never seen
     beam_heights: FloatArray  # (B,) height of each beam's origin above the sensor origin [m] (zeros: one origin)
+    scan_start: float = 0.0  # azimuth where each turn starts when rows come from the firing order [rad]
 
     def __post_init__(self) -> None:
         if self.source not in ("ring_field", "scan_order", "elevation"):
@@ -157,12 +191,10 @@ class BeamRows:
     def nearest_rows(self, xyz: FloatArray) -> IntArray:
         """(N,) row of the beam that passes nearest to each point (N, 3), counting each beam from its own origin."""
         planar = np.hypot(xyz[:, 0], xyz[:, 1])
-        rows = nearest_beam_rows(np.arctan2(xyz[:, 2], planar), self.sensor.beam_elevations)
-        for _ in range(2):  # the beam's origin height depends on the row: settle both
-            rows = nearest_beam_rows(
-                np.arctan2(xyz[:, 2] - self.beam_heights[rows], planar), self.sensor.beam_elevations
-            )
-        return rows
+        first_guess = nearest_beam_rows(np.arctan2(xyz[:, 2], planar), self.sensor.beam_elevations)
+        # The beam's origin height depends on the row: one correction from the first guess settles it.
+        corrected = np.arctan2(xyz[:, 2] - self.beam_heights[first_guess], planar)
+        return nearest_beam_rows(corrected, self.sensor.beam_elevations)
 
     def point_rays(self, xyz: FloatArray, rows: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Origins (N, 3), unit directions (N, 3) and ranges (N,) [m] of the rays that measured points (N, 3)."""
@@ -178,7 +210,7 @@ class BeamRows:
         if self.source == "ring_field" and RING_FIELD in (points.dtype.names or ()):
             labels = points[RING_FIELD].astype(np.int64)
         elif self.source == "scan_order":
-            segments = scan_order_segments(geometry.azimuths)
+            segments = scan_order_segments(geometry.azimuths, self.scan_start, geometry.ranges > 1e-3)
             if segments is not None and int(segments[-1]) + 1 == self.ring_to_row.shape[0]:
                 labels = segments
         nearest = nearest_beam_rows(geometry.elevations, self.sensor.beam_elevations)
@@ -190,28 +222,34 @@ class BeamRows:
         return result
 
 
-def _label_sweeps(sweeps: Sequence[Sweep]) -> tuple[str, list[IntArray | None] | None]:
-    """Where beam labels come from for these sweeps, and each sweep's labels (None where its order breaks)."""
+def _label_sweeps(sweeps: Sequence[Sweep]) -> tuple[str, list[IntArray | None] | None, float]:
+    """Where beam labels come from, each sweep's labels (None where its order breaks), and the scan start [rad]."""
     names = sweeps[0].points.dtype.names or ()
     if RING_FIELD in names:
-        return "ring_field", [sweep.points[RING_FIELD].astype(np.int64) for sweep in sweeps]
-    segments = [scan_order_segments(spherical(xyz_of(sweep.points)).azimuths) for sweep in sweeps]
+        return "ring_field", [sweep.points[RING_FIELD].astype(np.int64) for sweep in sweeps], 0.0
+    geometries = [spherical(xyz_of(sweep.points)) for sweep in sweeps]
+    first = geometries[0]
+    usable = first.ranges > 1e-3
+    scan_start = estimate_scan_start(first.azimuths[usable], first.elevations[usable]) if np.sum(usable) > 1 else 0.0
+    segments = [scan_order_segments(g.azimuths, scan_start, g.ranges > 1e-3) for g in geometries]
     counts = np.array([0 if labels is None else int(labels[-1]) + 1 for labels in segments])
     values, votes = np.unique(counts, return_counts=True)
     typical = int(values[np.argmax(votes)])
     # The order is trusted when most sweeps show the same number of turns (a cut-off last sweep may not).
     if typical >= 2 and votes.max() >= _ORDER_AGREEMENT * len(sweeps):
-        return "scan_order", [
-            labels if count == typical else None for labels, count in zip(segments, counts, strict=True)
-        ]
-    return "elevation", None
+        found = [labels if count == typical else None for labels, count in zip(segments, counts, strict=True)]
+        return "scan_order", found, scan_start
+    return "elevation", None, 0.0
 
 
 def _histogram_beams(elevations: FloatArray) -> FloatArray:
     """Beam elevations (descending) as the peaks of the elevation histogram."""
     from scipy.signal import find_peaks
 
-    low, high = float(elevations.min()), float(elevations.max())
+    low, high = (
+        float(elevations.min()) - 2 * _HISTOGRAM_BIN,
+        float(elevations.max()) + 2 * _HISTOGRAM_BIN,
+    )  # room for edge peaks
     bins = max(int(np.ceil((high - low) / _HISTOGRAM_BIN)), 1)
     counts, edges = np.histogram(elevations, bins=bins, range=(low, high + _HISTOGRAM_BIN))
     centres = 0.5 * (edges[:-1] + edges[1:])
@@ -285,7 +323,7 @@ def estimate_sensor_model(sweeps: Sequence[Sweep], max_sweeps: int = 8) -> BeamR
         raise SensorEstimationError(f"max_sweeps must be >= 1, got {max_sweeps}")
     picks = np.unique(np.linspace(0, len(sweeps) - 1, min(max_sweeps, len(sweeps))).round().astype(int))
     chosen = [sweeps[int(index)] for index in picks]
-    source, found = _label_sweeps(chosen)
+    source, found, scan_start = _label_sweeps(chosen)
     labels: list[IntArray] | None = None
     if found is not None:  # sweeps whose order breaks do not take part
         chosen = [sweep for sweep, label in zip(chosen, found, strict=True) if label is not None]
@@ -333,7 +371,9 @@ def estimate_sensor_model(sweeps: Sequence[Sweep], max_sweeps: int = 8) -> BeamR
         min_range=float(np.floor(ranges.min() * 10.0) / 10.0),
         max_range=float(np.ceil(ranges.max())),
     )
-    return BeamRows(sensor=sensor, source=source, ring_to_row=ring_to_row, beam_heights=beam_heights)
+    return BeamRows(
+        sensor=sensor, source=source, ring_to_row=ring_to_row, beam_heights=beam_heights, scan_start=scan_start
+    )
 
 
 @dataclass(frozen=True, eq=False)
