@@ -52,6 +52,7 @@ from advsim_ros.ros.wire import (
 )
 
 _GRAPH_POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
+_PLANS_KEPT = 50  # plans remembered by stamp [messages]
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,8 @@ class ScenarioPlayer(GraphNode):
 
         self.sweeps_seen = _Seen()
         self.plans_seen = _Seen()
+        self._plans: dict[int, bytes] = {}  # recent plans by header stamp, to forward the decision frame's
+        self.publish_decision_plan = self.raw_publisher(PATH, topics.DECISION_PLAN, qos.HISTORY)
         self.queries: queue.Queue[int] = queue.Queue()
         self.raw_subscription(POINTCLOUD2, topics.LIDAR, qos.LIDAR_OUT, self._on_sweep, decode=False)
         self.raw_subscription(PATH, topics.PLAN, qos.STREAM, self._on_plan, decode=False)
@@ -162,7 +165,11 @@ class ScenarioPlayer(GraphNode):
         self.sweeps_seen.add(header_stamp_ns(raw))
 
     def _on_plan(self, raw: bytes) -> None:
-        self.plans_seen.add(header_stamp_ns(raw))
+        stamp = header_stamp_ns(raw)
+        self._plans[stamp] = raw
+        while len(self._plans) > _PLANS_KEPT:
+            del self._plans[min(self._plans)]
+        self.plans_seen.add(stamp)
 
     def _on_tracks(self, message: Any) -> None:
         self.queries.put(int(message.query_id))
@@ -247,6 +254,8 @@ class ScenarioPlayer(GraphNode):
                 awaited += 1
                 if self.plans_seen.wait(sim_stamp, self.config.plan_timeout, self._stack_gone):
                     received += 1
+                    if decision:  # the scorer takes it from us: we know it arrived, latched it cannot be missed
+                        self.publish_decision_plan(self._plans[sim_stamp])
                 else:
                     plans_flowing = False  # do not wait at every frame for a stack that has stopped answering
                     self.get_logger().warning(f"query {query_id} frame {index}: no plan from the stack")

@@ -1,11 +1,13 @@
 """scorer: scores the stack's plan of each query with the adversarial objective and the planning metrics.
 
 When the player reports a query DONE it takes the plan stamped with the query's decision frame
-(the last sweep the stack saw), moves it from sim time back to log time through the shared
+(the last sweep the stack saw; the player forwards it, latched, so discovery timing between the
+stack and the scorer cannot lose it), moves it from sim time back to log time through the shared
 episode clock, and scores it against the human (logged ego) trajectory and the actors' futures —
-the perturbed ones from the perturber, the others as logged (core.objective, core.metrics). No
-plan: `stack_error` if nobody publishes the plan topic any more (the stack is gone), else
-`stack_timeout`; a plan that cannot be read (empty, NaN): `stack_error`.
+the perturbed ones from the perturber, the others as logged (core.objective, core.metrics). The
+player's outcome decides failures: the stack gone or replaced during the query: `stack_error`;
+frames or the decision plan unanswered: `stack_timeout`; a plan that cannot be read (empty,
+NaN): `stack_error`.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ from advsim_ros.ros.wire import (
 class ScorerNodeConfig:
     """/scorer parameters besides the objective's own (params/scorer.yaml)."""
 
-    plan_grace: float = 2.0  # wait this long after DONE for a plan still on its way [s, wall clock]
+    plan_grace: float = 5.0  # wait this long after DONE for the forwarded decision plan [s, wall clock]
     plans_kept: int = 200  # plans remembered by stamp (bounds memory) [messages]
 
     def __post_init__(self) -> None:
@@ -79,9 +81,10 @@ class Scorer(GraphNode):
         self._tracks: dict[int, tuple[ActorTrack, ...]] = {}
         self._started: dict[int, float] = {}
         self._condition = threading.Condition()
-        plans_group = ReentrantCallbackGroup()  # plans keep arriving while a DONE callback waits for one
+        # decision plans as the player forwards them (latched); they may land while a DONE callback waits
+        plans_group = ReentrantCallbackGroup()
         self.create_subscription(
-            message_class(PATH), topics.PLAN, self._on_plan, qos.STREAM, raw=True, callback_group=plans_group
+            message_class(PATH), topics.DECISION_PLAN, self._on_plan, qos.HISTORY, raw=True, callback_group=plans_group
         )
         self.raw_subscription(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks)
         self.raw_subscription(EPISODE, topics.EPISODE, qos.HISTORY, self._on_episode)
@@ -122,9 +125,6 @@ class Scorer(GraphNode):
             self._condition.wait_for(lambda: decision_sim in self._plans, self.config.plan_grace)
             raw = self._plans.pop(decision_sim, None)
         if raw is None:
-            if self.count_publishers(topics.PLAN) == 0:
-                reason = f"the stack is not running: nobody publishes {topics.PLAN}"
-                return failed_score_msg(self.wire, query_id, STATUS_STACK_ERROR, reason, wall_time)
             reason = f"no plan for the decision frame (sim stamp {decision_sim} ns) before the timeout"
             return failed_score_msg(self.wire, query_id, STATUS_STACK_TIMEOUT, reason, wall_time)
         try:

@@ -20,4 +20,5 @@ ACTOR_SELECTION = "/advsim/actor_selection"  # actors the search may move (logge
 PERTURBATION = "/advsim/perturbation"
 PERTURBED_TRACKS = "/advsim/perturbed_tracks"
 EPISODE = "/advsim/episode"
+DECISION_PLAN = "/advsim/decision_plan"  # the stack's plan of each query's decision frame, forwarded (latched)
 SCORE = "/advsim/score"
