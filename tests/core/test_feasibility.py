@@ -42,7 +42,7 @@ from advsim_ros.core.params import ParamsError
 from advsim_ros.core.types import ActorTrack, EgoTrajectory, RoadMap, Scenario, ScenarioError
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED_DATA = REPO / "../shared/data"
+
 DT = 0.1
 FRAMES = 80
 STAMPS = 1_000_000_000 + 100_000_000 * np.arange(FRAMES, dtype=np.int64)
@@ -434,13 +434,6 @@ def test_drivable_area_for_uses_the_map_when_there_is_one(street: Scenario) -> N
 # --- real logs ----------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def shared_data() -> Path:
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"real driving data not found at {SHARED_DATA.resolve()} (see README, 'Data')")
-    return SHARED_DATA.resolve()
-
-
 def _check_selection_on_real_log(scenario: Scenario, window: Window, config: PerturberConfig) -> None:
     drivable = drivable_area_for(scenario, config.drivable, config.ego_forward_offset)
     selection = select_actors(scenario, window, config, np.random.default_rng(0), drivable=drivable)
@@ -459,25 +452,16 @@ def _check_selection_on_real_log(scenario: Scenario, window: Window, config: Per
 
 
 @pytest.mark.parametrize("start", [0, 40, 90])
-def test_kitti_windows_have_perturbable_actors_with_valid_feasible_sets(shared_data: Path, start: int) -> None:
-    from advsim_ros.io.kitti import load_kitti_tracking
-
-    root = shared_data / "kitti_tracking_0000"
-    if not root.is_dir():
-        pytest.skip(f"KITTI tracking 0000 not found at {root}")
-    scenario = load_kitti_tracking(root, "0000")
+def test_kitti_windows_have_perturbable_actors_with_valid_feasible_sets(kitti_scenario: Scenario, start: int) -> None:
     config = dataclasses.replace(TEST_CONFIG, num_candidates=50_000, drivable_max_sweeps=8)
-    _check_selection_on_real_log(scenario, Window(start, 60), config)
+    _check_selection_on_real_log(kitti_scenario, Window(start, 60), config)
 
 
-def test_argoverse2_logs_have_perturbable_actors_with_valid_feasible_sets(shared_data: Path) -> None:
+def test_argoverse2_logs_have_perturbable_actors_with_valid_feasible_sets(av2_logs: list[Path]) -> None:
     from advsim_ros.io.av2 import load_av2_log
 
-    logs = sorted(path for path in (shared_data / "av2").glob("*-*-*-*-*") if path.is_dir())
-    if not logs:
-        pytest.skip(f"Argoverse 2 logs not found under {shared_data / 'av2'}")
     config = dataclasses.replace(TEST_CONFIG, num_candidates=50_000, num_actors=2)
-    for log in logs:
+    for log in av2_logs:
         scenario = load_av2_log(log)
         assert scenario.road_map is not None
         _check_selection_on_real_log(scenario, Window(0, 60), config)

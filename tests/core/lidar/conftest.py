@@ -10,10 +10,8 @@ import pytest
 from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.types import Scenario
 from advsim_ros.io.cache import cache_root
-from advsim_ros.io.kitti import load_kitti_tracking
 from advsim_ros.io.synthetic import SyntheticConfig, SyntheticLog, generate_synthetic_log
 
-SHARED_DATA = Path(__file__).resolve().parents[3] / "../shared/data"
 SYNTHETIC_SEED = 7
 
 
@@ -43,14 +41,6 @@ def short_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def short_model(short_log: SyntheticLog, short_cache: Path) -> ResimModel:
     return ResimModel.build(short_log.scenario, short_cache)
-
-
-@pytest.fixture(scope="session")
-def kitti_scenario() -> Scenario:
-    root = SHARED_DATA / "kitti_tracking_0000"
-    if not root.is_dir():
-        pytest.skip(f"KITTI tracking 0000 not found at {root.resolve()} (see README, 'Data')")
-    return load_kitti_tracking(root.resolve(), "0000")
 
 
 @pytest.fixture(scope="session")
