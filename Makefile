@@ -12,8 +12,8 @@ setup:
 	@bash scripts/setup.sh
 
 lint: setup
-	$(PY) -m ruff check src tests bench scripts
-	$(PY) -m ruff format --check src tests bench scripts
+	$(PY) -m ruff check conftest.py src tests bench scripts
+	$(PY) -m ruff format --check conftest.py src tests bench scripts
 	$(VENV)/bin/hadolint docker/Dockerfile
 
 typecheck: setup

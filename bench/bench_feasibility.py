@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from advsim_ros.core.drivable import DrivableArea, drivable_area_for
+from advsim_ros.core.drivable import drivable_area_for
+from advsim_ros.core.types import DrivableArea
 from advsim_ros.core.feasibility import (
     FeasibleSet,
     InfeasibleError,

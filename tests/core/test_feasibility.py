@@ -15,7 +15,6 @@ import pytest
 import shapely
 
 from advsim_ros.core.drivable import (
-    DrivableArea,
     DrivableConfig,
     drivable_area_for,
     drivable_area_from_map,
@@ -39,7 +38,7 @@ from advsim_ros.core.feasibility import (
     select_actors,
 )
 from advsim_ros.core.params import ParamsError
-from advsim_ros.core.types import ActorTrack, EgoTrajectory, RoadMap, Scenario, ScenarioError
+from advsim_ros.core.types import ActorTrack, DrivableArea, EgoTrajectory, RoadMap, Scenario, ScenarioError
 
 REPO = Path(__file__).resolve().parents[2]
 

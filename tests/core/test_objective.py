@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from advsim_ros.core.drivable import DrivableArea
+from advsim_ros.core.types import DrivableArea
 from advsim_ros.core.metrics import ActorFutures
 from advsim_ros.core.objective import (
     PRESET_NAMES,

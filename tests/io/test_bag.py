@@ -30,7 +30,7 @@ from advsim_ros.io.bag import (
     write_scenario_bag,
 )
 from advsim_ros.io.kitti import kitti_velodyne_dir
-from advsim_ros.io.pointcloud import PointCloudError
+from advsim_ros.contract.pointcloud import PointCloudError
 
 REPO = Path(__file__).resolve().parents[2]
 STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -382,5 +382,6 @@ def test_the_mcap_file_sits_in_a_rosbag2_folder_as_ros2_bag_makes_it(tmp_path: P
     }
     assert qos["/scenario/info"][0]["durability"] == "transient_local"
     assert qos["/sensor/lidar/points"][0]["durability"] == "volatile"
-    assert qos["/sensor/lidar/points"][0]["reliability"] == "best_effort"  # sensor data, as drivers publish
+    # offered reliable, as lidar_resim publishes it: matches sensor-data (best-effort) subscribers and reliable ones
+    assert qos["/sensor/lidar/points"][0]["reliability"] == "reliable"
     shutil.rmtree(bag)

@@ -1,15 +1,77 @@
 """Fixtures for tests that start real ROS 2 processes talking over Fast DDS on loopback."""
 
-from collections.abc import Iterator
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from advsim_ros.core.curation import crop_frames
+from advsim_ros.core.types import Scenario
+from advsim_ros.io.bag import write_scenario_bag
+from advsim_ros.io.synthetic import generate_synthetic_log
 from advsim_ros.ros.launcher import Launcher, graph_environment, reserve_domain_id
+
+PROCESSES = Path(__file__).resolve().parent / "processes"
+SIMPLE_STACK = PROCESSES / "simple_stack.py"
 
 
 @pytest.fixture
 def ros_graph(tmp_path: Path) -> Iterator[Launcher]:
     """A launcher for one isolated graph: its own ROS_DOMAIN_ID, discovery on loopback only."""
-    with reserve_domain_id() as domain_id, Launcher(graph_environment(domain_id), tmp_path / "logs") as launcher:
+    with (
+        reserve_domain_id() as lease,
+        Launcher(graph_environment(lease.domain_id), tmp_path / "logs", lease) as launcher,
+    ):
         yield launcher
+
+
+@pytest.fixture(scope="session")
+def kitti_window_bag(kitti_scenario: Scenario, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Frames 0..59 of KITTI tracking 0000 (1 s history + 5 s future) as a scenario bag."""
+    window = crop_frames(kitti_scenario, 0, 59)
+    return write_scenario_bag(window, tmp_path_factory.mktemp("kitti") / "window", source="kitti_tracking/0000")
+
+
+@pytest.fixture(scope="session")
+def synthetic_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A synthetic street log (ray-cast LiDAR, tracks, map) as a scenario bag."""
+    log = generate_synthetic_log(np.random.default_rng(3), scenario_id="synthetic_seed3")
+    return write_scenario_bag(log.scenario, tmp_path_factory.mktemp("synthetic") / "log", source="synthetic/seed=3")
+
+
+@pytest.fixture
+def simple_stack(tmp_path: Path) -> Callable[..., str]:
+    """The command line of the test stack (the example stack with faults) with the given parameters."""
+
+    def command(**parameters: int | float | str) -> str:
+        values = " ".join(f"-p {key}:={value}" for key, value in parameters.items())
+        return f"{sys.executable} {SIMPLE_STACK} --ros-args -p marker_dir:={tmp_path} {values}"
+
+    return command
+
+
+@pytest.fixture(scope="session")
+def advsim() -> Callable[..., subprocess.CompletedProcess[str]]:
+    """The `advsim` command as a user runs it."""
+
+    def run(*args: str, timeout: float = 900.0) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "advsim_ros.cli", *args],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            check=False,
+        )
+
+    return run
+
+
+@pytest.fixture(scope="session")
+def fast_parameters() -> dict[str, dict[str, int]]:
+    """Parameter overrides that keep graph tests fast (small feasible sets; selection and projection are real)."""
+    return {"perturber": {"num_candidates": 20_000}}

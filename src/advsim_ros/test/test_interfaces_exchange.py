@@ -42,6 +42,7 @@ SAMPLES: dict[str, list[dict]] = {
     "advsim_msgs/msg/ActorSelection": [
         {
             "header": HEADER,
+            "run_id": 2**63 + 5,
             "scenario_id": "kitti_0000",
             "actor_ids": ["4", "11"],
             "dimension": 24,
@@ -52,9 +53,12 @@ SAMPLES: dict[str, list[dict]] = {
     ],
     "advsim_msgs/msg/ActorState": [_state(3, 12.25)],
     "advsim_msgs/msg/ActorTrack": [_track("car:7")],
-    "advsim_msgs/msg/ActorTrackArray": [{"header": HEADER, "query_id": 9, "tracks": [_track("a"), _track("b")]}],
+    "advsim_msgs/msg/ActorTrackArray": [
+        {"header": HEADER, "run_id": 77, "query_id": 9, "tracks": [_track("a"), _track("b")]}
+    ],
     "advsim_msgs/msg/Perturbation": [
         {
+            "run_id": 12345678901234,
             "query_id": 3,
             "scenario_id": "kitti_0000/w40",
             "actor_ids": ["4", "11"],
@@ -64,6 +68,7 @@ SAMPLES: dict[str, list[dict]] = {
     ],
     "advsim_msgs/msg/QueryScore": [
         {
+            "run_id": 3,
             "query_id": 5,
             "status": 2,
             "message": "stack exited with code 1",
@@ -78,10 +83,18 @@ SAMPLES: dict[str, list[dict]] = {
             "lateral_acceleration": 2.25,
             "jerk": 4.5,
             "wall_time": 0.875,
+            "sweeps_delivered": 9,
+            "plans_received": 8,
+            "input_digest": "0f1e2d3c4b5a69788796a5b4c3d2e1f0",
+            "plan_digest": "00112233445566778899aabbccddeeff",
+            "detection_ap": 0.625,
+            "prediction_l2_3s": 1.125,
+            "prediction_l2_5s": 2.375,
         }
     ],
     "advsim_msgs/msg/Episode": [
         {
+            "run_id": 99,
             "query_id": 5,
             "phase": 2,
             "frame_index": 10,
@@ -91,6 +104,38 @@ SAMPLES: dict[str, list[dict]] = {
             "sweeps_delivered": 10,
             "plans_received": 9,
             "outcome": 1,
+            "input_digest": "ab",
+            "plan_digest": "cd",
+            "has_plan": True,
+            "decision_plan": {
+                "header": HEADER,
+                "poses": [
+                    {
+                        "header": HEADER,
+                        "pose": {
+                            "position": {"x": 1.5, "y": 2.5, "z": 0.25},
+                            "orientation": {"x": 0.0, "y": 0.0, "z": 0.6, "w": 0.8},
+                        },
+                    }
+                ],
+            },
+            "has_detections": True,
+            "detections": {"header": HEADER, "run_id": 0, "query_id": 0, "tracks": [_track("d")]},
+            "has_predictions": True,
+            "predictions": {"header": HEADER, "run_id": 0, "query_id": 0, "tracks": [_track("p")]},
+        }
+    ],
+    "advsim_msgs/msg/FrameRequest": [
+        {
+            "header": HEADER,
+            "run_id": 11,
+            "query_id": 4,
+            "frame_index": 3,
+            "log_frame": 23,
+            "ego_pose": {
+                "position": {"x": 10.5, "y": -3.25, "z": 0.125},
+                "orientation": {"x": 0.0, "y": 0.0, "z": 0.6, "w": 0.8},
+            },
         }
     ],
     "advsim_msgs/msg/Polyline": [{"x": [1.0, 2.0, 3.5], "y": [-1.0, 0.5, 4.0]}],
@@ -115,6 +160,7 @@ SAMPLES: dict[str, list[dict]] = {
             "ego_length": 4.5,
             "ego_width": 1.875,
             "ego_height": 1.625,
+            "ego_forward_offset": 1.25,
             "has_sensor_model": True,
             "beam_elevations": [0.03125, -0.0625, -0.375],
             "azimuth_resolution": 0.00625,

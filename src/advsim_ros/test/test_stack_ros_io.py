@@ -6,24 +6,20 @@ from nav_msgs.msg import Odometry
 from tf2_msgs.msg import TFMessage
 
 from advsim_msgs.msg import Polyline, RoadMap
+from advsim_ros.contract import codec, names
+from advsim_ros.contract.codec import stamp_ns
+from advsim_ros.contract.scenario import road_map_from_msg
+from advsim_ros.contract.spatial import transforms_of
 from advsim_ros.core.types import ActorClass, Plan
 from advsim_ros.stacks.interface import ObjectTrajectories, StackOutput
-from advsim_ros.stacks.ros_io import (
-    PoseBuffer,
-    path_msg,
-    road_map_from_msg,
-    stamp_ns,
-    static_transforms,
-    time_msg,
-    track_array_msg,
-)
+from advsim_ros.stacks.ros_io import PoseBuffer, output_messages
 
 STEP = 100_000_000
 
 
 def _odometry(stamp: int, x: float, twist_speed: float = 0.0) -> Odometry:
     message = Odometry()
-    message.header.stamp = time_msg(stamp)
+    message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
     message.header.frame_id = "map"
     message.child_frame_id = "base_link"
     message.pose.pose.position.x = x
@@ -53,7 +49,10 @@ def test_a_sweep_gets_the_odometry_pose_of_its_stamp_and_the_speed_from_the_pose
 def test_a_plan_becomes_a_path_stamped_at_the_sweep_with_every_pose_at_its_own_time() -> None:
     stamps = 3 * 10**9 + STEP * np.arange(1, 51)
     plan = Plan(stamps_ns=stamps, xy=np.column_stack([np.arange(50.0), np.zeros(50)]), yaws=np.full(50, np.pi / 2))
-    message = path_msg(StackOutput(plan=plan, plan_z=1.5), 3 * 10**9, "map")
+    plan_cdr, detections, predictions = output_messages(StackOutput(plan=plan, plan_z=1.5), 3 * 10**9, "map")
+    assert detections is None  # the stack made none
+    assert predictions is None
+    message = codec.decode(plan_cdr, names.PATH)
     assert stamp_ns(message.header.stamp) == 3 * 10**9
     assert message.header.frame_id == "map"
     assert [stamp_ns(pose.header.stamp) for pose in message.poses] == stamps.tolist()
@@ -76,7 +75,9 @@ def test_predictions_become_tracks_with_one_state_per_future_stamp() -> None:
         yaws=np.array([[0.1, 0.1]]),
         velocities=np.array([[5.0, 5.0]]),
     )
-    message = track_array_msg(objects, 0, "map")
+    plan = Plan(stamps_ns=stamps, xy=np.zeros((2, 2)), yaws=np.zeros(2))
+    _, _, predictions = output_messages(StackOutput(plan=plan, plan_z=0.0, predictions=objects), 0, "map")
+    message = codec.decode(predictions, names.ACTOR_TRACK_ARRAY)
     track = message.tracks[0]
     assert (track.actor_id, track.actor_class, track.confidence) == ("7", "cyclist", 1.0)  # clipped into [0, 1]
     assert [stamp_ns(state.stamp) for state in track.states] == stamps.tolist()
@@ -98,6 +99,6 @@ def test_maps_and_static_transforms_are_read_from_their_messages() -> None:
     broken = TransformStamped()
     broken.header.frame_id, broken.child_frame_id = "a", "b"
     broken.transform.rotation.w = 0.0  # an all-zero quaternion is no rotation: skipped
-    transforms = static_transforms(TFMessage(transforms=[mount, broken]))
+    transforms = transforms_of(TFMessage(transforms=[mount, broken]))
     assert list(transforms) == [("base_link", "velodyne")]
     assert transforms[("base_link", "velodyne")][2, 3] == 1.73

@@ -314,7 +314,13 @@ def best_window(windows: tuple[CurationWindow, ...]) -> CurationWindow:
 
 def crop_scenario(scenario: Scenario, window: CurationWindow) -> Scenario:
     """The scenario restricted to the window's frames: ego, actors observed in it, sweeps, same map."""
-    first, last = window.start_ns, window.end_ns
+    last = int(np.searchsorted(scenario.frame_stamps_ns, window.end_ns, side="right")) - 1
+    return crop_frames(scenario, window.start_frame, last)
+
+
+def crop_frames(scenario: Scenario, first_frame: int, last_frame: int) -> Scenario:
+    """The scenario restricted to frames first..last (inclusive), named ``<id>@<first>``; map and geometry kept."""
+    first, last = int(scenario.frame_stamps_ns[first_frame]), int(scenario.frame_stamps_ns[last_frame])
     keep = (scenario.frame_stamps_ns >= first) & (scenario.frame_stamps_ns <= last)
     frames = scenario.frame_stamps_ns[keep]
     actors = []
@@ -332,7 +338,7 @@ def crop_scenario(scenario: Scenario, window: CurationWindow) -> Scenario:
                 )
             )
     return Scenario(
-        scenario_id=f"{scenario.scenario_id}@{window.start_frame}",
+        scenario_id=f"{scenario.scenario_id}@{first_frame}",
         frame_stamps_ns=frames,
         ego=EgoTrajectory(stamps_ns=frames, poses=scenario.ego.poses[keep]),
         actors=tuple(actors),
@@ -341,4 +347,6 @@ def crop_scenario(scenario: Scenario, window: CurationWindow) -> Scenario:
         sensor=scenario.sensor,
         road_map=scenario.road_map,
         ego_size=scenario.ego_size,
+        ego_forward_offset=scenario.ego_forward_offset,
+        drivable_area=scenario.drivable_area,
     )

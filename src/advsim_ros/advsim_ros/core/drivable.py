@@ -14,7 +14,6 @@ Without one (KITTI) it is estimated from the log itself (see docs/behaviour.md):
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,81 +23,13 @@ import shapely
 from scipy import ndimage
 
 from advsim_ros.core.geometry import box_corners
-from advsim_ros.core.types import ActorClass, RoadMap, Scenario, ScenarioError
+from advsim_ros.core.types import SOURCE_LOG, SOURCE_MAP, ActorClass, DrivableArea, RoadMap, Scenario, ScenarioError
 
 AnyFloatArray = npt.NDArray[np.floating[Any]]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-SOURCE_MAP = "map"
-SOURCE_LOG = "log estimate"
 DRIVING_CLASSES = (ActorClass.VEHICLE, ActorClass.CYCLIST)
-
-
-@dataclass(frozen=True, eq=False)
-class DrivableArea:
-    """A drivable-area raster: cell (row i, column j) covers x in origin_x + [j, j + 1) res, y likewise with i."""
-
-    origin: FloatArray  # (2,) world x, y of the outer corner of cell (0, 0) [m]
-    resolution: float  # cell edge [m]
-    mask: BoolArray  # (H, W) True where drivable; rows go along y, columns along x
-    source: str  # SOURCE_MAP or SOURCE_LOG
-
-    def __post_init__(self) -> None:
-        origin = np.asarray(self.origin, dtype=np.float64)
-        mask = np.asarray(self.mask, dtype=bool)
-        if origin.shape != (2,) or not np.all(np.isfinite(origin)):
-            raise ScenarioError(f"DrivableArea origin: expected 2 finite numbers, got {self.origin!r}")
-        if not (np.isfinite(self.resolution) and self.resolution > 0):
-            raise ScenarioError(f"DrivableArea resolution: must be positive, got {self.resolution}")
-        if mask.ndim != 2 or mask.size == 0:
-            raise ScenarioError(f"DrivableArea mask: expected a non-empty 2-D array, got shape {mask.shape}")
-        object.__setattr__(self, "origin", origin)
-        object.__setattr__(self, "mask", mask)
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (int(self.mask.shape[0]), int(self.mask.shape[1]))
-
-    def contains(self, x: npt.ArrayLike, y: npt.ArrayLike, offset: npt.ArrayLike = (0.0, 0.0)) -> BoolArray:
-        """Whether world points (x + offset_x, y + offset_y) [m] are drivable; outside the raster is not.
-
-        ``offset`` lets callers keep coordinates in a local float32 frame around ``offset``.
-        """
-        x_values, y_values = np.asarray(x), np.asarray(y)
-        dtype = x_values.dtype if np.issubdtype(x_values.dtype, np.floating) else np.dtype(np.float64)
-        # Index the raster padded by one undrivable cell: points outside clip onto the padding.
-        shift = np.asarray(offset, dtype=np.float64) - self.origin + self.resolution
-        scale = dtype.type(1.0 / self.resolution)
-        padded = self._padded
-        height, width = padded.shape
-        column = np.clip((x_values + dtype.type(shift[0])) * scale, 0, width - 1).astype(np.int32)
-        row = np.clip((y_values + dtype.type(shift[1])) * scale, 0, height - 1).astype(np.int32)
-        row *= np.int32(width)
-        row += column
-        result: BoolArray = padded.ravel()[row]
-        return result
-
-    @functools.cached_property
-    def _padded(self) -> BoolArray:
-        padded = np.zeros((self.mask.shape[0] + 2, self.mask.shape[1] + 2), dtype=bool)
-        padded[1:-1, 1:-1] = self.mask
-        return padded
-
-    def eroded(self, margin: float) -> DrivableArea:
-        """The area shrunk by margin [m]: cells whose centre is at least margin from every undrivable cell."""
-        if margin <= 0.0:
-            return self
-        distance = ndimage.distance_transform_edt(self.mask, sampling=self.resolution)
-        return DrivableArea(self.origin, self.resolution, np.asarray(distance > margin), self.source)
-
-    def cell_centers(self) -> tuple[FloatArray, FloatArray]:
-        """(H, W) world x and y of every cell centre [m]."""
-        height, width = self.shape
-        columns = self.origin[0] + (np.arange(width) + 0.5) * self.resolution
-        rows = self.origin[1] + (np.arange(height) + 0.5) * self.resolution
-        grid_x, grid_y = np.meshgrid(columns, rows)
-        return grid_x, grid_y
 
 
 @dataclass(frozen=True)
@@ -281,7 +212,9 @@ def estimate_drivable_area(
 
 
 def drivable_area_for(scenario: Scenario, config: DrivableConfig, ego_forward_offset: float) -> DrivableArea:
-    """The map's drivable area when the scenario has one, else the estimate from the log."""
+    """The scenario's stored drivable area, else its map's, else the estimate from the log."""
+    if scenario.drivable_area is not None:
+        return scenario.drivable_area
     extent = scenario_extent(scenario, config.reach)
     if scenario.road_map is not None and scenario.road_map.drivable_areas:
         return drivable_area_from_map(scenario.road_map, extent, config.resolution)

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from advsim_ros.core.drivable import DrivableArea, DrivableConfig, drivable_area_for
+from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.dynamics import (
     STATE_DIM,
     KinematicBounds,
@@ -50,7 +50,15 @@ from advsim_ros.core.dynamics import (
 )
 from advsim_ros.core.geometry import box_distance, boxes_overlap, overlap_from_components, wrap_angle
 from advsim_ros.core.params import config_from_mapping, load_node_params
-from advsim_ros.core.types import ActorClass, ActorTrack, IntArray, Scenario, ScenarioError
+from advsim_ros.core.types import (
+    ActorClass,
+    ActorTrack,
+    DrivableArea,
+    IntArray,
+    Perturbation,
+    Scenario,
+    ScenarioError,
+)
 
 AnyFloatArray = npt.NDArray[np.floating[Any]]
 FloatArray = npt.NDArray[np.float64]
@@ -1100,6 +1108,17 @@ class ActorSelection:
 
     def project(self, delta: npt.ArrayLike) -> tuple[PerturbedTrajectory, ...]:
         return project(self.sets, delta)
+
+    def project_perturbation(self, perturbation: Perturbation) -> tuple[PerturbedTrajectory, ...]:
+        """A query's trajectories: none for the original scenario (empty delta), else the projection of its delta."""
+        if perturbation.delta.size == 0:
+            return ()
+        if perturbation.actor_ids != self.actor_ids:
+            raise InfeasibleError(
+                f"query {perturbation.query_id} perturbs actors {list(perturbation.actor_ids)}, "
+                f"the feasible sets are for {list(self.actor_ids)}"
+            )
+        return self.project(perturbation.delta)
 
 
 def rank_actors(scenario: Scenario, window: Window, config: PerturberConfig) -> list[tuple[str, float]]:

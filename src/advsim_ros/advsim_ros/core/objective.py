@@ -47,7 +47,7 @@ from advsim_ros.core.params import ParamsError, config_from_mapping, load_node_p
 from advsim_ros.core.types import EgoTrajectory, FloatArray, Plan, RoadMap, ScenarioError
 
 if TYPE_CHECKING:  # the raster type only; importing drivable pulls in scipy
-    from advsim_ros.core.drivable import DrivableArea
+    from advsim_ros.core.types import DrivableArea
 
 OBJECTIVE_KINDS = ("advsim", "closest_distance", "max_margin")
 PRESET_NAMES = ("M0", "M1", "M2", "M3", "M4", "M5", "closest_distance", "max_margin")

@@ -11,7 +11,9 @@ These types never import rclpy or ROS messages (see advsim_ros.ros for conversio
 
 from __future__ import annotations
 
+import functools
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -20,6 +22,7 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 class ScenarioError(ValueError):
@@ -207,6 +210,78 @@ class RoadMap:
         object.__setattr__(self, "lane_centerlines", lanes)
 
 
+SOURCE_MAP = "map"  # DrivableArea.source: rasterised from the vector map
+SOURCE_LOG = "log estimate"  # estimated from the log (driven area grown over the LiDAR ground)
+
+
+@dataclass(frozen=True, eq=False)
+class DrivableArea:
+    """A drivable-area raster: cell (row i, column j) covers x in origin_x + [j, j + 1) res, y likewise with i."""
+
+    origin: FloatArray  # (2,) world x, y of the outer corner of cell (0, 0) [m]
+    resolution: float  # cell edge [m]
+    mask: BoolArray  # (H, W) True where drivable; rows go along y, columns along x
+    source: str  # SOURCE_MAP or SOURCE_LOG
+
+    def __post_init__(self) -> None:
+        origin = np.asarray(self.origin, dtype=np.float64)
+        mask = np.asarray(self.mask, dtype=bool)
+        if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+            raise ScenarioError(f"DrivableArea origin: expected 2 finite numbers, got {self.origin!r}")
+        if not (np.isfinite(self.resolution) and self.resolution > 0):
+            raise ScenarioError(f"DrivableArea resolution: must be positive, got {self.resolution}")
+        if mask.ndim != 2 or mask.size == 0:
+            raise ScenarioError(f"DrivableArea mask: expected a non-empty 2-D array, got shape {mask.shape}")
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "mask", mask)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.mask.shape[0]), int(self.mask.shape[1]))
+
+    def contains(self, x: npt.ArrayLike, y: npt.ArrayLike, offset: npt.ArrayLike = (0.0, 0.0)) -> BoolArray:
+        """Whether world points (x + offset_x, y + offset_y) [m] are drivable; outside the raster is not.
+
+        ``offset`` lets callers keep coordinates in a local float32 frame around ``offset``.
+        """
+        x_values, y_values = np.asarray(x), np.asarray(y)
+        dtype = x_values.dtype if np.issubdtype(x_values.dtype, np.floating) else np.dtype(np.float64)
+        # Index the raster padded by one undrivable cell: points outside clip onto the padding.
+        shift = np.asarray(offset, dtype=np.float64) - self.origin + self.resolution
+        scale = dtype.type(1.0 / self.resolution)
+        padded = self._padded
+        height, width = padded.shape
+        column = np.clip((x_values + dtype.type(shift[0])) * scale, 0, width - 1).astype(np.int32)
+        row = np.clip((y_values + dtype.type(shift[1])) * scale, 0, height - 1).astype(np.int32)
+        row *= np.int32(width)
+        row += column
+        result: BoolArray = padded.ravel()[row]
+        return result
+
+    @functools.cached_property
+    def _padded(self) -> BoolArray:
+        padded = np.zeros((self.mask.shape[0] + 2, self.mask.shape[1] + 2), dtype=bool)
+        padded[1:-1, 1:-1] = self.mask
+        return padded
+
+    def eroded(self, margin: float) -> DrivableArea:
+        """The area shrunk by margin [m]: cells whose centre is at least margin from every undrivable cell."""
+        if margin <= 0.0:
+            return self
+        from scipy import ndimage  # only here: core.types stays light to import
+
+        distance = ndimage.distance_transform_edt(self.mask, sampling=self.resolution)
+        return DrivableArea(self.origin, self.resolution, np.asarray(distance > margin), self.source)
+
+    def cell_centers(self) -> tuple[FloatArray, FloatArray]:
+        """(H, W) world x and y of every cell centre [m]."""
+        height, width = self.shape
+        columns = self.origin[0] + (np.arange(width) + 0.5) * self.resolution
+        rows = self.origin[1] + (np.arange(height) + 0.5) * self.resolution
+        grid_x, grid_y = np.meshgrid(columns, rows)
+        return grid_x, grid_y
+
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """A driving log: frames at a fixed rate, the ego's logged trajectory, actors, LiDAR, map."""
@@ -220,6 +295,8 @@ class Scenario:
     sensor: SensorModel | None = None  # LiDAR geometry when known
     road_map: RoadMap | None = None  # vector map when the log has one
     ego_size: FloatArray = field(default_factory=lambda: np.array([4.5, 1.9, 1.7]))  # (3,) ego box l, w, h [m]
+    ego_forward_offset: float = 1.0  # centre of the ego box ahead of the ego frame's origin [m]
+    drivable_area: DrivableArea | None = None  # a stored drivable raster (e.g. the estimate an attack used)
 
     def __post_init__(self) -> None:
         _require(bool(self.scenario_id), "Scenario: scenario_id must not be empty")
@@ -253,6 +330,10 @@ class Scenario:
         ego_size = _as_float_array(f"Scenario {self.scenario_id} ego_size", self.ego_size, (3,))
         _require(bool(np.all(ego_size > 0)), f"Scenario {self.scenario_id}: ego_size must be positive")
         object.__setattr__(self, "ego_size", ego_size)
+        _require(
+            bool(np.isfinite(self.ego_forward_offset)),
+            f"Scenario {self.scenario_id}: ego_forward_offset must be finite",
+        )
 
     @property
     def num_frames(self) -> int:
@@ -263,6 +344,12 @@ class Scenario:
             if actor.actor_id == actor_id:
                 return actor
         raise KeyError(f"scenario {self.scenario_id} has no actor {actor_id!r}")
+
+
+def replace_actors(actors: Sequence[ActorTrack], moved: Sequence[ActorTrack]) -> tuple[ActorTrack, ...]:
+    """The actors with those in ``moved`` (matched by id) swapped in: a query's perturbed world."""
+    by_id = {track.actor_id: track for track in moved}
+    return tuple(by_id.get(actor.actor_id, actor) for actor in actors)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,10 +1,9 @@
-"""lidar_resim: turns each logged sweep into the sweep of the query's perturbed world.
+"""lidar_resim: answers each FrameRequest with the sweep of the query's perturbed world on the LiDAR topic.
 
-It builds (or loads from the cache) the log's re-simulation model once, keeps the perturbed
-tracks of each query, and for every logged sweep the player sends (on the sim clock) it looks
-up the query and log time through the shared episode clock, takes the sensor pose from the
-ego odometry of the same stamp, re-simulates, and publishes the result on the LiDAR topic with
-the logged sweep's header. Messages of the three inputs are matched by stamp, in any order.
+It loads (or builds and caches) the log's re-simulation model once, keeps each query's perturbed
+tracks, and renders a requested frame (core.lidar.query) as soon as both the request and the
+query's tracks are there, in whatever order they arrive. The sweep keeps the logged sweep's
+frame and fields and carries the request's sim stamp.
 """
 
 from __future__ import annotations
@@ -13,84 +12,70 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from advsim_ros.contract import topics
+from advsim_ros.contract.protocol import FrameRequestRecord, frame_request_from_msg
+from advsim_ros.contract.scenario import cloud_msg
+from advsim_ros.contract.tracks import track_array_from_msg
 from advsim_ros.core.lidar.config import ResimConfig
+from advsim_ros.core.lidar.query import query_sweep
 from advsim_ros.core.lidar.resim import ResimModel
-from advsim_ros.core.types import ActorTrack, Sweep
-from advsim_ros.io.bag import ODOMETRY, POINTCLOUD2, cloud_msg, pose_matrix
+from advsim_ros.core.types import ActorTrack, ScenarioError, Sweep
 from advsim_ros.io.cache import cache_root
-from advsim_ros.io.pointcloud import cloud_to_points
-from advsim_ros.ros import qos, topics
 from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.params import declare_config
-from advsim_ros.ros.wire import ACTOR_TRACK_ARRAY, header_stamp_ns, tracks_from_msg
 
 
 @dataclass(frozen=True)
 class ResimNodeConfig:
     """/lidar_resim parameters besides the re-simulation settings (params/lidar_resim.yaml)."""
 
-    seed: int = 0  # ray-drop sampling: the generator of (query, frame) is seeded from (seed, query, frame)
+    seed: int = 0  # ray-drop sampling: seeded from (seed, frame, the perturbed tracks' content)
     cache_dir: str = ""  # where the background and assets are cached; "" = <advsim cache>/resim
+    build_model: bool = True  # build the model at start-up (off for `advsim replay`: nothing moves there)
 
 
 class LidarResim(GraphNode):
     def __init__(self) -> None:
         super().__init__("lidar_resim")
-        self.node_config = declare_config(self, ResimNodeConfig)
+        self.config = declare_config(self, ResimNodeConfig)
         resim_config = declare_config(self, ResimConfig, "resim.")
         self.scenario, self.clock = self.load_scenario(load_sweeps=True)
-        cache = Path(self.node_config.cache_dir) if self.node_config.cache_dir else cache_root() / "resim"
-        self.get_logger().info(f"loading or building the re-simulation model (cache {cache})")
-        self.model = ResimModel.build(self.scenario, cache_dir=cache, config=resim_config)
-        self.publish_sweep = self.raw_publisher(POINTCLOUD2, topics.LIDAR, qos.LIDAR_OUT)
-        self.perturbed: dict[int, tuple[ActorTrack, ...]] = {}
-        self.clouds: dict[int, bytes] = {}  # sim stamp -> logged sweep waiting for its pose or tracks
-        self.poses: dict[int, Any] = {}  # sim stamp -> T_world_ego
-        self.raw_subscription(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks)
-        self.raw_subscription(POINTCLOUD2, topics.ORIGINAL_POINTS, qos.STREAM, self._on_cloud, decode=False)
-        self.raw_subscription(ODOMETRY, topics.ODOM, qos.STREAM, self._on_odometry)
+        self.sweeps = {sweep.stamp_ns: sweep for sweep in self.scenario.sweeps}
+        frames = self.window.frame_indices(self.scenario.num_frames)[: self.window.history_frames]
+        missing = [i for i in frames if int(self.scenario.frame_stamps_ns[i]) not in self.sweeps]
+        if missing:
+            raise ScenarioError(f"scenario {self.scenario.scenario_id}: no LiDAR sweep at history frames {missing}")
+        self.model: ResimModel | None = None
+        if self.config.build_model:
+            cache = Path(self.config.cache_dir) if self.config.cache_dir else cache_root() / "resim"
+            self.get_logger().info(f"loading or building the re-simulation model (cache {cache})")
+            self.model = ResimModel.build(self.scenario, cache_dir=cache, config=resim_config)
+        self.publish_sweep = self.publisher(topics.LIDAR)
+        self.tracks: dict[int, tuple[ActorTrack, ...]] = {}
+        self.waiting: list[FrameRequestRecord] = []
+        self.subscribe(topics.PERTURBED_TRACKS, self._on_tracks)
+        self.subscribe(topics.FRAME_REQUEST, self._on_request)
         self.get_logger().info("ready")
 
     def _on_tracks(self, message: Any) -> None:
-        self.perturbed[int(message.query_id)] = tracks_from_msg(message)
-        self._process_ready()
+        record = track_array_from_msg(message)
+        self.tracks = {q: t for q, t in self.tracks.items() if q >= record.query_id - 1}  # queries follow each other
+        self.tracks[record.query_id] = record.actor_tracks()
+        self._answer()
 
-    def _on_cloud(self, raw: bytes) -> None:
-        self.clouds[header_stamp_ns(raw)] = raw
-        self._process_ready()
+    def _on_request(self, message: Any) -> None:
+        self.waiting.append(frame_request_from_msg(message))
+        self._answer()
 
-    def _on_odometry(self, message: Any) -> None:
-        stamp = int(message.header.stamp.sec) * 1_000_000_000 + int(message.header.stamp.nanosec)
-        self.poses[stamp] = pose_matrix(message.pose.pose.position, message.pose.pose.orientation, "ego odometry")
-        self._process_ready()
-
-    def _process_ready(self) -> None:
-        for sim_stamp in sorted(self.clouds):
-            query_id = self.clock.locate(sim_stamp).query_id
-            if sim_stamp in self.poses and query_id in self.perturbed:
-                self._resimulate(sim_stamp, self.clouds.pop(sim_stamp), self.poses.pop(sim_stamp))
-        # queries strictly follow each other: what belongs to finished queries will never be needed
-        if self.clouds:
-            oldest = self.clock.locate(min(self.clouds)).query_id
-            self.perturbed = {q: t for q, t in self.perturbed.items() if q >= oldest}
-
-    def _resimulate(self, sim_stamp: int, raw: bytes, ego_pose: Any) -> None:
-        located = self.clock.locate(sim_stamp)
-        cloud = self.wire.decode(raw, POINTCLOUD2)
-        logged = Sweep(
-            stamp_ns=located.log_time_ns,
-            frame_id=cloud.header.frame_id,
-            points=cloud_to_points(cloud),
-            sensor_pose=ego_pose @ self.scenario.ego_T_sensor,
-        )
-        moved = {track.actor_id: track for track in self.perturbed[located.query_id]}
-        world = [moved.get(actor.actor_id, actor) for actor in self.scenario.actors]
-        rng = np.random.default_rng([self.node_config.seed, located.query_id, located.offset_ns])
-        points = self.model.resimulate(logged, self.scenario.actors, world, rng=rng) if moved else logged.points
-        out = Sweep(stamp_ns=sim_stamp, frame_id=logged.frame_id, points=points, sensor_pose=logged.sensor_pose)
-        self.publish_sweep(cloud_msg(self.wire.store, out))
+    def _answer(self) -> None:
+        ready = [request for request in self.waiting if request.query_id in self.tracks]
+        self.waiting = [request for request in self.waiting if request.query_id not in self.tracks]
+        for request in ready:
+            logged = self.sweeps[int(self.scenario.frame_stamps_ns[request.log_frame])]
+            moved = self.tracks[request.query_id]
+            points = query_sweep(self.model, self.scenario, logged, request.world_T_ego, moved, self.config.seed)
+            out = Sweep(request.sim_stamp_ns, logged.frame_id, points, logged.sensor_pose)
+            self.publish_sweep(cloud_msg(out))
 
 
 def main() -> None:

@@ -1,4 +1,10 @@
-"""What every node of the attack graph shares: raw CDR topics, the window and scenario, the main loop."""
+"""What every node of the attack graph shares: contract topics as raw CDR, the run id, the window, the main loop.
+
+Messages travel as CDR bytes built and parsed by ``advsim_ros.contract`` (rclpy's
+``publish(bytes)`` and ``raw=True`` subscriptions), so what a node publishes is byte for byte
+what a bag records. Protocol messages carry the attack's run id: a subscription drops, and
+logs once, those of another run, so a stray graph on the same ROS domain changes nothing.
+"""
 
 from __future__ import annotations
 
@@ -8,45 +14,90 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.callback_groups import CallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.parameter import Parameter
 
+from advsim_ros.contract import codec
+from advsim_ros.contract.qos import QosSpec
+from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.episode import EpisodeClock, WindowConfig
 from advsim_ros.core.types import Scenario, ScenarioError
 from advsim_ros.io.bag import BagConfig, read_scenario_bag
 from advsim_ros.ros.messages import message_class
 from advsim_ros.ros.params import declare_config
-from advsim_ros.ros.wire import Wire
+from advsim_ros.ros.qos import profile
+
+RUN_ID_PARAMETER = "run_id"  # every node of one attack gets the same value (advsim attack draws it)
 
 
-class GraphNode(Node):
-    """A node that speaks CDR through the shared Wire and knows the attack's window."""
+class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
+    """A node that speaks the contract as CDR, knows the attack's window and ignores other runs."""
 
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
-        self.wire = Wire()
+    def __init__(self, name: str, parameter_overrides: list[Parameter] | None = None) -> None:
+        super().__init__(name, parameter_overrides=parameter_overrides)
+        self.run_id = int(self.declare_parameter(RUN_ID_PARAMETER, 0).value)
         self.window = declare_config(self, WindowConfig, "window.")
         self.bag_config = declare_config(self, BagConfig, "bag.")
+        self._foreign_runs: set[tuple[str, int]] = set()
 
-    def raw_publisher(self, type_name: str, topic: str, qos: QoSProfile) -> Callable[[Any], None]:
-        """A publish function taking a rosbags message object or ready CDR bytes."""
-        publisher = self.create_publisher(message_class(type_name), topic, qos)
+    def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Callable[[Any], None]:
+        """A publish function taking a typestore message object or ready CDR bytes."""
+        publisher = self.create_publisher(message_class(topic.msgtype), topic.name, profile(qos or topic.offered))
 
-        def publish(message: Any) -> None:
-            publisher.publish(message if isinstance(message, bytes) else self.wire.encode(message))
+        def publish(value: Any) -> None:
+            publisher.publish(value if isinstance(value, bytes) else codec.encode(value))
 
         return publish
 
-    def raw_subscription(
-        self, type_name: str, topic: str, qos: QoSProfile, callback: Callable[[Any], None], *, decode: bool = True
+    def latch(self, topic: TopicSpec, value: Any) -> Any:
+        """Publish one message on a latched (transient-local) topic; the publisher is returned to keep it alive."""
+        publisher = self.create_publisher(message_class(topic.msgtype), topic.name, profile(topic.offered))
+        publisher.publish(codec.encode(value))
+        return publisher
+
+    def subscribe(
+        self,
+        topic: TopicSpec,
+        callback: Callable[[Any], None],
+        *,
+        qos: QosSpec | None = None,
+        raw: bool = False,
+        group: CallbackGroup | None = None,
     ) -> None:
-        """Subscribe; the callback gets the decoded rosbags message (or the CDR bytes with decode=False)."""
+        """Subscribe; the callback gets the decoded message (its CDR bytes with raw=True).
 
-        def on_message(raw: bytes) -> None:
-            callback(self.wire.decode(raw, type_name) if decode else raw)
+        Messages with a run id (the protocol's) reach the callback only when it is this attack's.
+        """
 
-        self.create_subscription(message_class(type_name), topic, on_message, qos, raw=True)
+        def on_message(data: bytes) -> None:
+            if raw:
+                callback(data)
+                return
+            decoded = codec.decode(data, topic.msgtype)
+            foreign = getattr(decoded, "run_id", self.run_id)
+            if foreign != self.run_id:
+                self._ignore(topic.name, int(foreign))
+                return
+            callback(decoded)
+
+        self.create_subscription(
+            message_class(topic.msgtype),
+            topic.name,
+            on_message,
+            profile(qos or topic.offered),
+            raw=True,
+            callback_group=group,
+        )
+
+    def _ignore(self, topic: str, run_id: int) -> None:
+        if (topic, run_id) not in self._foreign_runs:
+            self._foreign_runs.add((topic, run_id))
+            self.get_logger().warning(
+                f"ignoring {topic} messages of run {run_id:#x} (this attack is run {self.run_id:#x}): "
+                "another graph shares the ROS domain"
+            )
 
     def load_scenario(self, *, load_sweeps: bool) -> tuple[Scenario, EpisodeClock]:
         """The window's scenario from the bag, and the episode clock all nodes share."""
@@ -56,14 +107,14 @@ class GraphNode(Node):
         return scenario, self.window.clock(scenario.frame_stamps_ns.tolist())
 
 
-def run_node(factory: Callable[[], Node], *, threads: int = 2) -> None:
+def run_node(factory: Callable[[], Node], *, threads: int = 1) -> None:
     """Create the node and spin it until SIGINT/SIGTERM; a start-up error exits 1 with its message."""
     rclpy.init()
     node: Node | None = None
     exit_code = 0
     try:
         node = factory()
-        executor = MultiThreadedExecutor(num_threads=threads)
+        executor = SingleThreadedExecutor() if threads == 1 else MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -1,8 +1,14 @@
 """A small process launcher for ROS 2 node graphs (ros2 launch is not available from the wheels).
 
 Every node and the stack under test run as separate processes with `--ros-args`, on one isolated
-ROS_DOMAIN_ID with discovery kept on loopback. Processes are stopped with SIGINT first (rclpy's
-clean shutdown), then SIGTERM, then SIGKILL. Output goes to one log file per process.
+ROS_DOMAIN_ID with discovery kept on loopback. Output goes to one log file per process.
+
+No process outlives its graph, however the orchestrator ends (kill -9 included): each process
+runs in a process group of its own with the parent-death signal set (it gets SIGKILL when the
+orchestrator dies), and a reaper process (ros.reaper) kills every group of the graph, the
+stack's children included, once the orchestrator is gone. The ROS-domain lock is inherited by
+every process of the graph, so the domain stays reserved until the last of them has exited.
+Processes are stopped with SIGINT first (rclpy's clean shutdown), then SIGKILL.
 """
 
 from __future__ import annotations
@@ -10,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -65,24 +72,50 @@ def python_module_command(module: str, *args: str) -> tuple[str, ...]:
     return (sys.executable, "-m", module, *args)
 
 
+@dataclass(frozen=True)
+class DomainLease:
+    """A reserved ROS_DOMAIN_ID and the open lock file that holds it (inherited by the graph's processes)."""
+
+    domain_id: int
+    lock_fd: int
+
+
 @contextlib.contextmanager
-def reserve_domain_id() -> Iterator[int]:
-    """Hold a ROS_DOMAIN_ID no other advsim graph on this machine uses until the block ends."""
+def reserve_domain_id() -> Iterator[DomainLease]:
+    """Hold a ROS_DOMAIN_ID no other advsim graph on this machine uses while any holder of the lease lives.
+
+    The lock is an flock on a file per domain; processes started by a Launcher with this lease
+    inherit the open file, so the lock is released only when the orchestrator *and* every
+    process of its graph have exited (never unlocked explicitly, which would release it for all).
+    """
     _LOCK_DIR.mkdir(parents=True, exist_ok=True)
     for domain_id in _DOMAIN_IDS:
-        handle = open(_LOCK_DIR / f"{domain_id}.lock", "w")  # noqa: SIM115 - held for the whole block
+        fd = os.open(_LOCK_DIR / f"{domain_id}.lock", os.O_WRONLY | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            handle.close()
+            os.close(fd)
             continue
         try:
-            yield domain_id
+            yield DomainLease(domain_id, fd)
         finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
-            handle.close()
+            os.close(fd)
         return
     raise LaunchError(f"no free ROS_DOMAIN_ID in {_DOMAIN_IDS.start}..{_DOMAIN_IDS.stop - 1}")
+
+
+def _die_with_parent(argv: list[str]) -> list[str]:
+    """argv run through util-linux's setpriv so that the process gets SIGKILL when the orchestrator dies.
+
+    (prctl(PR_SET_PDEATHSIG) survives the exec; setpriv sets it without a Python pre-exec hook,
+    which is unsafe in a process that already runs DDS threads.)
+    """
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        raise LaunchError(
+            "setpriv (util-linux) is not installed: it is needed to tie the graph's processes to this one"
+        )
+    return [setpriv, "--pdeathsig", "KILL", "--", *argv]
 
 
 def graph_overrides(domain_id: int) -> dict[str, str]:
@@ -114,29 +147,46 @@ class _Running:
 
 
 class Launcher:
-    """Starts processes of one graph and stops them all, in reverse order, on exit."""
+    """Starts the processes of one graph (each in its own process group) and stops them all on exit."""
 
-    def __init__(self, env: Mapping[str, str], log_dir: Path) -> None:
+    def __init__(self, env: Mapping[str, str], log_dir: Path, lease: DomainLease) -> None:
         self._env = dict(env)
         self._log_dir = log_dir
+        self._lease = lease
         self._running: list[_Running] = []
         log_dir.mkdir(parents=True, exist_ok=True)
+        # The reaper first: from now on nothing this launcher starts can outlive the orchestrator.
+        with open(log_dir / "reaper.log", "ab") as reaper_log:
+            self._reaper = subprocess.Popen(
+                python_module_command("advsim_ros.ros.reaper"),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.DEVNULL,
+                stderr=reaper_log,
+                pass_fds=(lease.lock_fd,),
+                start_new_session=True,
+                env={**self._env, "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"},  # it needs no ROS libraries: no re-exec
+            )
+        assert self._reaper.stdin is not None
+        self._tell_reaper = self._reaper.stdin
 
     def start(self, spec: NodeSpec) -> subprocess.Popen[bytes]:
         log_path = self._log_dir / f"{spec.name}.log"
         log_file = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
         try:
             process = subprocess.Popen(
-                spec.argv(),
+                _die_with_parent(spec.argv()),
                 env=self._env,
                 stdin=subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=subprocess.STDOUT,
-                start_new_session=True,  # our own signals reach it only when we send them
+                start_new_session=True,  # a process group of its own: our signals reach it only when we send them
+                pass_fds=(self._lease.lock_fd,),
             )
         except OSError as error:
             log_file.close()
             raise LaunchError(f"cannot start {spec.name} ({' '.join(spec.command)}): {error}") from error
+        self._tell_reaper.write(f"{process.pid}\n".encode())  # its process group id is its pid (setsid)
+        self._tell_reaper.flush()
         self._running.append(_Running(spec, process, log_path, log_file))
         return process
 
@@ -159,32 +209,47 @@ class Launcher:
         return None
 
     def stop_all(self, timeout: float = 5.0) -> dict[str, int | None]:
-        codes: dict[str, int | None] = {}
-        while self._running:
-            running = self._running.pop()
-            codes[running.spec.name] = _terminate(running, timeout)
+        """SIGINT to every group at once, SIGKILL to what is left after ``timeout``; returns the exit codes."""
+        running, self._running = self._running, []
+        for item in running:
+            _signal_group(item.process, signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for item in running:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                item.process.wait(timeout=max(0.0, deadline - time.monotonic()))
+        codes = {}
+        for item in running:
+            _signal_group(item.process, signal.SIGKILL)  # the group: children of a stack's shell included
+            codes[item.spec.name] = item.process.wait()
+            item.log_file.close()
         return codes
+
+    def close(self) -> None:
+        """Stop everything, then let the reaper check that nothing of the graph is left and exit."""
+        self.stop_all()
+        self._tell_reaper.close()
+        self._reaper.wait()
 
     def __enter__(self) -> Launcher:
         return self
 
     def __exit__(self, *exc_info: object) -> None:
-        self.stop_all()
+        self.close()
+
+
+def _signal_group(process: subprocess.Popen[bytes], sig: int) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(process.pid, sig)
 
 
 def _terminate(running: _Running, timeout: float) -> int | None:
-    process = running.process
+    """Stop one process's group: SIGINT, then SIGKILL after ``timeout``."""
     try:
-        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-            if process.poll() is not None:
-                break
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(process.pid, sig)
-            try:
-                process.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                continue
-        return process.poll()
+        _signal_group(running.process, signal.SIGINT)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            running.process.wait(timeout=timeout)
+        _signal_group(running.process, signal.SIGKILL)
+        return running.process.wait()
     finally:
         running.log_file.close()
 

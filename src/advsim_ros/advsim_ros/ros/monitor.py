@@ -1,8 +1,10 @@
-"""The attack's monitor: an in-process node that follows scores and records the query to keep.
+"""The attack's monitor: an in-process node of the orchestrator that follows the protocol and collects queries.
 
-It holds every QueryScore and Perturbation, and the raw messages (re-simulated sweeps, the
-stack's plans, perturbed tracks) of the most recent query only, so memory stays bounded; when
-the run ends, those of the last query (the replay of the best one) are what the outputs record.
+It gathers, per query, the perturbation, the perturbed tracks, the Episode DONE (the stack's
+decision-frame plan and the digests) and the QueryScore, in whatever order they arrive; a
+query whose pieces are all there is handed out once as a finished query (``take_finished``),
+to be journaled. It also reads the ROS graph to say what a stack that does not connect is
+doing instead. In replay mode it asks for the queries itself (nothing is perturbed).
 """
 
 from __future__ import annotations
@@ -14,63 +16,83 @@ from typing import Any
 import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 
-from advsim_ros.core.types import Perturbation
-from advsim_ros.ros import qos, topics
-from advsim_ros.ros.messages import message_class
-from advsim_ros.ros.wire import (
-    ACTOR_SELECTION,
-    ACTOR_TRACK_ARRAY,
-    EPISODE,
-    PATH,
-    PERTURBATION,
-    PHASE_DONE,
-    QUERY_SCORE,
-    STATUS_INFEASIBLE,
-    STATUS_OK,
-    Wire,
-    header_stamp_ns,
+from advsim_ros.contract import topics
+from advsim_ros.contract.enums import Phase, Status
+from advsim_ros.contract.protocol import (
+    EpisodeRecord,
+    ScoreRecord,
+    SelectionRecord,
+    episode_from_msg,
+    perturbation_from_msg,
     perturbation_msg,
-    track_array_msg,
+    score_from_msg,
+    selection_from_msg,
 )
+from advsim_ros.contract.tracks import track_array_from_msg, track_array_msg
+from advsim_ros.core.types import ActorTrack, Perturbation
+from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode
+from advsim_ros.ros.lockstep import GRAPH_NODE_NAMES, stack_endpoints
 
-POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+MONITOR_NODE = "advsim_monitor"
 
 
 @dataclass
-class Recording:
-    """What the monitor saw, decoded where small, raw CDR where large."""
+class FinishedQuery:
+    """Everything about one query, once it is over."""
 
-    scores: dict[int, Any] = field(default_factory=dict)  # query id -> QueryScore
-    perturbations: dict[int, Any] = field(default_factory=dict)  # query id -> Perturbation
-    selection: Any = None  # ActorSelection
-    episodes: dict[int, Any] = field(default_factory=dict)  # query id -> its Episode DONE
-    query_id: int = -1  # the query whose raw messages are below
-    sweeps: dict[int, bytes] = field(default_factory=dict)  # sim stamp -> re-simulated PointCloud2
-    plans: dict[int, bytes] = field(default_factory=dict)  # header stamp -> Path
-    tracks: bytes | None = None  # ActorTrackArray of the query
-    original_plans: dict[int, bytes] = field(default_factory=dict)  # the plans of query 0, kept for comparison
+    perturbation: Perturbation
+    score: ScoreRecord
+    tracks: tuple[ActorTrack, ...] = ()
+    episode: EpisodeRecord | None = None  # absent for queries scored infeasible (never replayed)
+
+
+@dataclass
+class _Pending:
+    perturbation: Perturbation | None = None
+    score: ScoreRecord | None = None
+    tracks: tuple[ActorTrack, ...] | None = None
+    episode: EpisodeRecord | None = None
+    current_frame: int = 0
+
+    def finished(self) -> FinishedQuery | None:
+        if self.perturbation is None or self.score is None:
+            return None
+        if self.score.status != Status.INFEASIBLE and (self.episode is None or self.tracks is None):
+            return None
+        return FinishedQuery(self.perturbation, self.score, self.tracks or (), self.episode)
+
+
+@dataclass
+class Progress:
+    scored: int = 0
+    failed: int = 0
+    best_adversarial_loss: float = math.nan
+    query: int = -1
+    frame: int = 0
+    flags: dict[str, Any] = field(default_factory=dict)
 
 
 class AttackMonitor:
-    def __init__(self, replay_only: bool) -> None:
-        self.replay_only = replay_only
-        self.wire = Wire()
-        self.record = Recording()
+    def __init__(self, run_id: int, skip: frozenset[int] = frozenset()) -> None:
+        self.run_id = run_id
+        self.skip = skip  # queries already journaled (a resumed attack): never handed out again
+        self.selection: SelectionRecord | None = None
+        self.progress = Progress()
+        self._pending: dict[int, _Pending] = {}
 
     def __enter__(self) -> AttackMonitor:
-        rclpy.init()
-        self.node = Node("advsim_monitor")
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # SIGINT/SIGTERM stay the orchestrator's
+        self.node = GraphNode(MONITOR_NODE, [Parameter(RUN_ID_PARAMETER, value=self.run_id)])
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
-        self._subscribe(QUERY_SCORE, topics.SCORE, qos.HISTORY, self._on_score)
-        self._subscribe(PERTURBATION, topics.PERTURBATION, qos.LATCHED, self._on_perturbation)
-        self._subscribe(ACTOR_SELECTION, topics.ACTOR_SELECTION, qos.LATCHED, self._on_selection)
-        self._subscribe(EPISODE, topics.EPISODE, qos.HISTORY, self._on_episode)
-        self._subscribe(ACTOR_TRACK_ARRAY, topics.PERTURBED_TRACKS, qos.LATCHED, self._on_tracks, decode=False)
-        self._subscribe(POINTCLOUD2, topics.LIDAR, qos.LIDAR_OUT, self._on_sweep, decode=False)
-        self._subscribe(PATH, topics.PLAN, qos.STREAM, self._on_plan, decode=False)
+        self.node.subscribe(topics.SCORE, self._on_score)
+        self.node.subscribe(topics.PERTURBATION, self._on_perturbation)
+        self.node.subscribe(topics.ACTOR_SELECTION, self._on_selection)
+        self.node.subscribe(topics.EPISODE, self._on_episode)
+        self.node.subscribe(topics.PERTURBED_TRACKS, self._on_tracks)
         return self
 
     def __exit__(self, *exc_info: object) -> None:
@@ -78,80 +100,93 @@ class AttackMonitor:
         self.node.destroy_node()
         rclpy.try_shutdown()
 
-    def _subscribe(self, type_name: str, topic: str, profile: Any, callback: Any, decode: bool = True) -> None:
-        def on_message(raw: bytes) -> None:
-            callback(self.wire.decode(raw, type_name) if decode else raw)
-
-        self.node.create_subscription(message_class(type_name), topic, on_message, profile, raw=True)
-
-    # ----- callbacks
+    def _entry(self, query_id: int) -> _Pending:
+        return self._pending.setdefault(query_id, _Pending())
 
     def _on_score(self, message: Any) -> None:
-        self.record.scores[int(message.query_id)] = message
+        score = score_from_msg(message)
+        if score.query_id in self.skip:
+            return
+        self._entry(score.query_id).score = score
+        self.progress.scored += 1
+        self.progress.failed += 0 if score.ok else 1
+        if score.ok and score.query_id > 0:
+            best = self.progress.best_adversarial_loss
+            self.progress.best_adversarial_loss = (
+                score.adversarial_loss if math.isnan(best) else max(best, score.adversarial_loss)
+            )
 
     def _on_perturbation(self, message: Any) -> None:
-        self.record.perturbations[int(message.query_id)] = message
-
-    def _on_episode(self, message: Any) -> None:
-        if message.phase == PHASE_DONE:
-            self.record.episodes[int(message.query_id)] = message
+        perturbation = perturbation_from_msg(message)
+        self._entry(perturbation.query_id).perturbation = perturbation
+        self.progress.query = max(self.progress.query, perturbation.query_id)
 
     def _on_selection(self, message: Any) -> None:
-        self.record.selection = message
+        self.selection = selection_from_msg(message)
 
-    def _on_tracks(self, raw: bytes) -> None:
-        query_id = int(self.wire.decode(raw, ACTOR_TRACK_ARRAY).query_id)
-        if query_id != self.record.query_id:  # a new query: forget the previous one's raw messages
-            if self.record.query_id == 0:
-                self.record.original_plans = dict(self.record.plans)
-            self.record.query_id = query_id
-            self.record.sweeps.clear()
-            self.record.plans.clear()
-        self.record.tracks = raw
+    def _on_episode(self, message: Any) -> None:
+        episode = episode_from_msg(message)
+        self.progress.frame = episode.frame_index
+        if episode.phase == Phase.DONE:
+            self._entry(episode.query_id).episode = episode
 
-    def _on_sweep(self, raw: bytes) -> None:
-        self.record.sweeps[header_stamp_ns(raw)] = raw
-
-    def _on_plan(self, raw: bytes) -> None:
-        self.record.plans[header_stamp_ns(raw)] = raw
-
-    # ----- driving
-
-    def request_original(self) -> None:
-        """Replay mode: ask for query 0 with nobody moved (the bag's own actors are the scenario)."""
-        publish_tracks = self.node.create_publisher(
-            message_class(ACTOR_TRACK_ARRAY), topics.PERTURBED_TRACKS, qos.LATCHED
-        )
-        publish_query = self.node.create_publisher(message_class(PERTURBATION), topics.PERTURBATION, qos.LATCHED)
-        publish_query.publish(
-            self.wire.encode(perturbation_msg(self.wire, Perturbation(0, "replay", (), np.zeros(0), "replay")))
-        )
-        publish_tracks.publish(self.wire.encode(track_array_msg(self.wire, 0, 0, "world", [])))
+    def _on_tracks(self, message: Any) -> None:
+        record = track_array_from_msg(message)
+        self._entry(record.query_id).tracks = record.actor_tracks()
 
     def spin_once(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
-    @property
-    def num_scores(self) -> int:
-        return len(self.record.scores)
+    def idle(self) -> bool:
+        """No query asked for is still unfinished (nothing pending)."""
+        return not any(entry.perturbation is not None for entry in self._pending.values())
 
-    @property
-    def current_query(self) -> int:
-        return max(self.record.perturbations, default=-1)
+    def take_finished(self) -> list[FinishedQuery]:
+        """Queries whose every piece arrived since the last call, in query order."""
+        done = []
+        for query_id in sorted(self._pending):
+            finished = self._pending[query_id].finished()
+            if finished is not None and query_id not in self.skip:
+                done.append(finished)
+                del self._pending[query_id]
+        return done
 
-    def progress(self) -> dict[str, Any]:
-        ok = [s for s in self.record.scores.values() if s.status == STATUS_OK and s.query_id > 0]
-        best = max((float(s.adversarial_loss) for s in ok), default=math.nan)
-        failed = sum(1 for s in self.record.scores.values() if s.status != STATUS_OK)
-        return {"scored": self.num_scores, "best_adversarial_loss": best, "failed": failed}
+    # ----- replay mode: the orchestrator asks for the queries itself
 
-    def missing_episodes(self) -> list[int]:
-        """Scored queries whose Episode DONE has not arrived (queries scored infeasible never had one)."""
-        return [
-            query
-            for query, score in self.record.scores.items()
-            if query not in self.record.episodes and score.status != STATUS_INFEASIBLE
-        ]
+    def request_replay(self, query_id: int, world_frame: str) -> None:
+        """Ask for query ``query_id`` of the bag's own scenario, nobody moved."""
+        if not hasattr(self, "_replay_publishers"):
+            self._replay_publishers = (
+                self.node.publisher(topics.PERTURBATION),
+                self.node.publisher(topics.PERTURBED_TRACKS),
+            )
+        publish_perturbation, publish_tracks = self._replay_publishers
+        publish_perturbation(perturbation_msg(Perturbation(query_id, "replay", (), np.zeros(0), "replay"), self.run_id))
+        publish_tracks(track_array_msg([], 0, world_frame, query_id=query_id, run_id=self.run_id))
 
-    def recording(self) -> Recording:
-        return self.record
+    # ----- diagnostics
+
+    def stack_connection(self) -> tuple[bool, str]:
+        """Whether the stack listens to the LiDAR and publishes plans; if not, what it does instead."""
+        node = self.node
+        lidar = bool(stack_endpoints(node, topics.LIDAR.name, False))
+        plans = bool(stack_endpoints(node, topics.PLAN.name, True))
+        if lidar and plans:
+            return True, ""
+        missing = []
+        if not lidar:
+            missing.append(f"no subscription to the LiDAR topic {topics.LIDAR.name}")
+        if not plans:
+            missing.append(f"no publisher of the plan topic {topics.PLAN.name}")
+        used = []
+        for name, namespace in node.get_node_names_and_namespaces():
+            if name in GRAPH_NODE_NAMES:
+                continue
+            subscribed = sorted(t for t, _ in node.get_subscriber_names_and_types_by_node(name, namespace))
+            published = sorted(t for t, _ in node.get_publisher_names_and_types_by_node(name, namespace))
+            used.append(
+                f"node {namespace.rstrip('/')}/{name} subscribes {subscribed or 'nothing'}, "
+                f"publishes {published or 'nothing'}"
+            )
+        seen = "; ".join(used) if used else "no node of the stack is on the ROS graph"
+        return False, f"{' and '.join(missing)} ({seen})"

@@ -22,7 +22,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
-from advsim_ros.io.pointcloud import cloud_to_points
+from advsim_ros.contract.pointcloud import cloud_to_points
 
 
 class ExampleStack(Node):

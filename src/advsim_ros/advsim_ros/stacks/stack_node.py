@@ -23,21 +23,17 @@ from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
 
 from advsim_msgs.msg import ActorTrackArray, RoadMap
+from advsim_ros.contract import qos, topics
+from advsim_ros.contract.codec import stamp_ns
+from advsim_ros.contract.pointcloud import cloud_to_points
+from advsim_ros.contract.scenario import road_map_from_msg
+from advsim_ros.contract.spatial import transforms_of
 from advsim_ros.core.types import FloatArray, ScenarioError
-from advsim_ros.io.pointcloud import cloud_to_points
-from advsim_ros.ros import qos, topics
 from advsim_ros.ros.params import declare_config
+from advsim_ros.ros.qos import profile
 from advsim_ros.stacks.interface import AutonomyStack, StackFrame, TopicIoConfig, points_xyz
 from advsim_ros.stacks.params import section_types
-from advsim_ros.stacks.ros_io import (
-    PoseBuffer,
-    mount_matrix,
-    path_msg,
-    road_map_from_msg,
-    stamp_ns,
-    static_transforms,
-    track_array_msg,
-)
+from advsim_ros.stacks.ros_io import PoseBuffer, mount_matrix, output_messages
 
 
 def declare_sections(node: Node, config_type: type[Any]) -> Any:
@@ -62,19 +58,24 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         self._fallback_mount = mount_matrix(io.sensor_mount)
         self._warned_mount = False
         self._first_cloud_at: float | None = None  # wall clock of the first sweep, for io.mount_wait_s
-        self._publish_plan = self.create_publisher(Path, topics.PLAN, qos.STREAM).publish
-        self._publish_detections = self.create_publisher(ActorTrackArray, topics.DETECTIONS, qos.STREAM).publish
-        self._publish_predictions = self.create_publisher(ActorTrackArray, topics.PREDICTIONS, qos.STREAM).publish
-        self.create_subscription(TFMessage, topics.TF_STATIC, self._on_tf_static, qos.LATCHED)
-        self.create_subscription(RoadMap, topics.MAP, self._on_map, qos.LATCHED)
-        self.create_subscription(Odometry, topics.ODOM, self._on_odometry, qos.STREAM)
-        self.create_subscription(PointCloud2, topics.LIDAR, self._on_cloud, qos.SENSOR)
+        # outputs are published as CDR built by the contract's builders
+        self._publish_plan = self.create_publisher(Path, topics.PLAN.name, profile(topics.PLAN.offered)).publish
+        self._publish_detections = self.create_publisher(
+            ActorTrackArray, topics.DETECTIONS.name, profile(topics.DETECTIONS.offered)
+        ).publish
+        self._publish_predictions = self.create_publisher(
+            ActorTrackArray, topics.PREDICTIONS.name, profile(topics.PREDICTIONS.offered)
+        ).publish
+        self.create_subscription(TFMessage, topics.TF_STATIC.name, self._on_tf_static, profile(qos.LATCHED))
+        self.create_subscription(RoadMap, topics.MAP.name, self._on_map, profile(qos.LATCHED))
+        self.create_subscription(Odometry, topics.ODOM.name, self._on_odometry, profile(qos.STREAM))
+        self.create_subscription(PointCloud2, topics.LIDAR.name, self._on_cloud, profile(qos.SENSOR_DATA))
         # Sweeps waiting for /tf_static must be planned from once the wait is over, even if nothing else arrives.
         self.create_timer(0.1, self._process_pending, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"{self.stack.name} stack ready")
 
     def _on_tf_static(self, message: TFMessage) -> None:
-        self._static.update(static_transforms(message))
+        self._static.update(transforms_of(message))
 
     def _on_map(self, message: RoadMap) -> None:
         try:
@@ -157,11 +158,11 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         except ScenarioError as error:
             self.get_logger().error(f"sweep at {stamp} ns: {error}")
             return
-        world = self._poses.world_frame
-        self._publish_plan(path_msg(output, stamp, world))
-        if output.detections is not None:
-            self._publish_detections(track_array_msg(output.detections, stamp, world))
-        if output.predictions is not None:
-            self._publish_predictions(track_array_msg(output.predictions, stamp, world))
+        plan, detections, predictions = output_messages(output, stamp, self._poses.world_frame)
+        self._publish_plan(plan)
+        if detections is not None:
+            self._publish_detections(detections)
+        if predictions is not None:
+            self._publish_predictions(predictions)
         total = output.timings_s.get("total", float("nan"))
         self.get_logger().debug(f"planned from the sweep at {stamp} ns in {1000.0 * total:.1f} ms")

@@ -28,10 +28,11 @@ from sensor_msgs.msg import PointCloud2, PointField
 from tf2_msgs.msg import TFMessage
 
 from advsim_msgs.msg import ActorTrackArray
+from advsim_ros.contract import qos, topics
+from advsim_ros.contract.pointcloud import points_are_bigendian, points_to_cloud_fields
 from advsim_ros.io.kitti import load_kitti_tracking
-from advsim_ros.io.pointcloud import points_are_bigendian, points_to_cloud_fields
-from advsim_ros.ros import qos, topics
 from advsim_ros.ros.messages import message_to_dict
+from advsim_ros.ros.qos import profile
 
 WORLD, EGO, SENSOR = "world", "base_link", "velodyne"
 RESEND_AFTER = 5.0  # [s] without the plan for the current sweep: send it again (a lost best-effort sample)
@@ -81,15 +82,17 @@ def main() -> None:
     scenario = load_kitti_tracking(root, "0000")
     rclpy.init()
     node = Node("stack_feeder")
-    publish_cloud = node.create_publisher(PointCloud2, topics.LIDAR, qos.SENSOR)
-    publish_odometry = node.create_publisher(Odometry, topics.ODOM, qos.STREAM)
-    publish_clock = node.create_publisher(Clock, topics.CLOCK, qos.CLOCK)
-    publish_static = node.create_publisher(TFMessage, topics.TF_STATIC, qos.LATCHED)
+    publish_cloud = node.create_publisher(PointCloud2, topics.LIDAR.name, profile(qos.SENSOR_DATA))
+    publish_odometry = node.create_publisher(Odometry, topics.ODOM.name, profile(qos.STREAM))
+    publish_clock = node.create_publisher(Clock, topics.CLOCK.name, profile(qos.CLOCK))
+    publish_static = node.create_publisher(TFMessage, topics.TF_STATIC.name, profile(qos.LATCHED))
     received: dict[str, list] = {"plans": [], "detections": [], "predictions": []}
-    node.create_subscription(PathMsg, topics.PLAN, lambda m: received["plans"].append(message_to_dict(m)), qos.STREAM)
-    for key, topic in (("detections", topics.DETECTIONS), ("predictions", topics.PREDICTIONS)):
+    node.create_subscription(
+        PathMsg, topics.PLAN.name, lambda m: received["plans"].append(message_to_dict(m)), profile(qos.STREAM)
+    )
+    for key, topic in (("detections", topics.DETECTIONS.name), ("predictions", topics.PREDICTIONS.name)):
         node.create_subscription(
-            ActorTrackArray, topic, lambda m, key=key: received[key].append(message_to_dict(m)), qos.STREAM
+            ActorTrackArray, topic, lambda m, key=key: received[key].append(message_to_dict(m)), profile(qos.STREAM)
         )
     mount = TransformStamped()
     mount.header.frame_id, mount.child_frame_id = EGO, SENSOR
@@ -103,7 +106,7 @@ def main() -> None:
     publish_static.publish(TFMessage(transforms=[mount]))
     # The stack is there once it listens to the LiDAR and advertises the plan (as the scenario player checks).
     print("feed_stack: waiting for the stack", file=sys.stderr, flush=True)
-    while publish_cloud.get_subscription_count() < 1 or node.count_publishers(topics.PLAN) < 1:
+    while publish_cloud.get_subscription_count() < 1 or node.count_publishers(topics.PLAN.name) < 1:
         rclpy.spin_once(node, timeout_sec=0.1)
     print("feed_stack: the stack is up", file=sys.stderr, flush=True)
     sent = []

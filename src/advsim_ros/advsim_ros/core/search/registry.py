@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +17,7 @@ import numpy as np
 
 from advsim_ros.core.params import ParamsError, config_from_mapping, load_node_params
 from advsim_ros.core.search.base import SearchAlgorithm, SearchConfig, SearchError
+from advsim_ros.core.search.driver import DriverConfig
 
 ALGORITHM_NAMES = ("bo", "ga", "rs", "nes", "bandit", "random")
 SEARCH_NODE_NAME = "search"  # node whose parameters params/search.yaml holds
@@ -90,7 +91,8 @@ def load_search_settings(path: Path, algorithm: str | None = None) -> SearchSett
     seed = parameters.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ParamsError(f"{context}.seed: expected a non-negative integer, got {seed!r}")
-    unknown = sorted(set(parameters) - {"algorithm", "seed", *ALGORITHM_NAMES})
+    node_keys = {"algorithm", "seed", "score_timeout", "journal_file", *(f.name for f in fields(DriverConfig))}
+    unknown = sorted(set(parameters) - {*node_keys, *ALGORITHM_NAMES})
     if unknown:
         raise ParamsError(f"{context}: unknown parameter(s) {unknown}")
     section = parameters.get(name, {})

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from advsim_ros.core.drivable import DrivableArea, drivable_area_from_map
+from advsim_ros.core.drivable import drivable_area_from_map
 from advsim_ros.core.geometry import overlap_from_components
-from advsim_ros.core.types import FloatArray, RoadMap
+from advsim_ros.core.types import DrivableArea, FloatArray, RoadMap
 from advsim_ros.stacks.modular.config import PlannerConfig
 from advsim_ros.stacks.modular.occupancy import ObstacleGrid
 

@@ -6,8 +6,7 @@ import time
 
 import numpy as np
 
-from advsim_ros.core.drivable import DrivableArea
-from advsim_ros.core.types import ActorClass, FloatArray, Plan, RoadMap
+from advsim_ros.core.types import ActorClass, DrivableArea, FloatArray, Plan, RoadMap
 from advsim_ros.stacks.interface import (
     ObjectTrajectories,
     StackFrame,

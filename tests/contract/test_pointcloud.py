@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
-from advsim_ros.io.pointcloud import (
+from advsim_ros.contract.pointcloud import (
     FLOAT32,
     FLOAT64,
     UINT8,

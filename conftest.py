@@ -1,4 +1,4 @@
-"""Fixtures every ROS-free test shares: the real driving data beside the repository, loaded once per session.
+"""Fixtures every test shares: the real driving data beside the repository, loaded once per session.
 
 Tests that need the data skip with a message naming the missing folder when it is absent.
 """
@@ -12,7 +12,7 @@ import pytest
 from advsim_ros.core.types import Scenario
 from advsim_ros.io.kitti import load_kitti_tracking
 
-SHARED_DATA = Path(__file__).resolve().parents[1] / "../shared/data"
+SHARED_DATA = Path(__file__).resolve().parent / "../shared/data"
 
 
 @pytest.fixture(scope="session")

@@ -1,0 +1,105 @@
+"""Everything about an attack that can be checked before a process starts, each failure one clear line.
+
+The bag (readable, with the LiDAR and ego-pose topics), the window (inside the log), the stack
+command (resolvable), the remappings (contract topics, checked by StackSpec) and every node's
+parameters (the same configs the nodes build, from the same files) are checked here, so a bad
+input starts nothing and loses nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.attack.options import AttackOptions
+from advsim_ros.attack.params import node_files, node_parameters, section
+from advsim_ros.core.curation import CurationConfig, best_window, curate_windows, load_curation_config
+from advsim_ros.core.drivable import DrivableConfig
+from advsim_ros.core.episode import WindowConfig
+from advsim_ros.core.lidar.config import ResimConfig
+from advsim_ros.core.objective import scorer_settings_from_params
+from advsim_ros.core.search.driver import DriverConfig
+from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_from_params
+from advsim_ros.core.types import Scenario, ScenarioError
+from advsim_ros.io.bag import BagConfig, read_scenario_bag, summarize_bag
+
+
+@dataclass(frozen=True, eq=False)
+class Preflight:
+    """What the checks established: the scenario (without sweeps), the window, every node's parameters."""
+
+    bag: Path
+    scenario: Scenario
+    window: WindowConfig
+    bag_config: BagConfig
+    parameters: dict[str, dict[str, Any]]  # node -> its merged ros__parameters (overrides included)
+    files: dict[str, tuple[Path, ...]]  # node -> the project's parameter files it gets (before the overrides)
+
+
+GRAPH_NODES = ("scorer", "scenario_player", "lidar_resim", "perturber", "search")
+
+
+def _stack_resolvable(options: AttackOptions) -> None:
+    executable = options.stack.command[0]
+    if os.sep in executable:
+        if not (Path(executable).is_file() and os.access(executable, os.X_OK)):
+            raise ScenarioError(f"--stack: {executable} is not an executable file")
+    elif shutil.which(executable) is None:
+        raise ScenarioError(f"--stack: command {executable!r} not found on PATH")
+
+
+def choose_window(scenario: Scenario, params_dir: Path) -> int:
+    """The curated window (highest collision rate of sampled SDV plans) of a scenario."""
+    curation_file = params_dir / "curation.yaml"
+    config = load_curation_config(curation_file) if curation_file.exists() else CurationConfig()
+    return best_window(curate_windows(scenario, config)).start_frame
+
+
+def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
+    """Check the attack's inputs; ScenarioError naming the first problem."""
+    bag = options.bag.resolve()
+    if not (bag / "metadata.yaml").exists():
+        raise ScenarioError(f"{bag}: not a rosbag2 folder (no metadata.yaml)")
+    if not options.replay_only and options.algorithm not in ALGORITHM_NAMES:
+        raise ScenarioError(f"--algo {options.algorithm!r}: not one of {', '.join(ALGORITHM_NAMES)}")
+    _stack_resolvable(options)
+    params_dir = options.params
+    files = {node: node_files(params_dir, node) for node in GRAPH_NODES}
+    parameters = {node: node_parameters(files[node], node, overrides) for node in GRAPH_NODES}
+    bag_config = section(parameters["scenario_player"], "bag", BagConfig, "bag")
+    scenario = read_scenario_bag(bag, config=bag_config, load_sweeps=False)
+    lidar = summarize_bag(bag).topics.get(bag_config.lidar_topic)
+    if lidar is None or lidar.message_count == 0:
+        raise ScenarioError(f"{bag}: no LiDAR sweeps on {bag_config.lidar_topic}; an attack needs them")
+    start = options.window_start_frame
+    if start is None:
+        start = 0 if options.replay_only else choose_window(scenario, params_dir)
+    window_values = {**parameters["scenario_player"].get("window", {}), "window_start_frame": int(start)}
+    window = section({"window": window_values}, "window", WindowConfig, "window")
+    window.frame_indices(scenario.num_frames)  # the window inside the log, or the error saying by how much
+    _check_node_configs(options, parameters)
+    return Preflight(bag, scenario, window, bag_config, parameters, files)
+
+
+def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, Any]]) -> None:
+    """Build every node's configs the way the node will, so bad parameters fail here, not in a process."""
+    from advsim_ros.core.feasibility import PerturberConfig
+    from advsim_ros.nodes.lidar_resim import ResimNodeConfig
+    from advsim_ros.nodes.scenario_player import PlayerConfig
+    from advsim_ros.nodes.search import SearchNodeConfig
+
+    section(parameters["scenario_player"], "", PlayerConfig, "/scenario_player")
+    section(parameters["lidar_resim"], "", ResimNodeConfig, "/lidar_resim")
+    section(parameters["lidar_resim"], "resim", ResimConfig, "/lidar_resim")
+    section(parameters["perturber"], "", PerturberConfig, "/perturber")
+    section(parameters["scorer"], "drivable", DrivableConfig, "/scorer")
+    scorer = {k: v for k, v in parameters["scorer"].items() if k in ("objective", "metrics")}
+    scorer_settings_from_params(scorer, "/scorer")
+    search = parameters["search"]
+    section(search, "", SearchNodeConfig, "/search")
+    section(search, "", DriverConfig, "/search")
+    if not options.replay_only:
+        config_from_params(options.algorithm, search.get(options.algorithm, {}), f"/search {options.algorithm}")

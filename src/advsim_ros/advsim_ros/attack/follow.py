@@ -1,0 +1,112 @@
+"""Following a running attack graph: journal finished queries, restart a crashed stack, fail clearly.
+
+The loop ends when the search node has exited after its last query (code 0) and every query it
+asked for is journaled (replay mode: when every requested run is). It fails with one message
+naming the cause when a node of the graph dies, when the stack never connects (with what the
+stack does instead, read from the ROS graph), or when nothing progresses for too long.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.attack.checks import Preflight
+from advsim_ros.attack.options import AttackError, AttackOptions
+from advsim_ros.core.journal import Journal
+from advsim_ros.ros.launcher import Launcher, NodeSpec
+from advsim_ros.ros.monitor import AttackMonitor
+
+_POLL = 0.1  # [s]
+SEARCH_NODE = "search"
+
+
+def _log_tail(path: Path, lines: int = 30) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return "(no log)"
+
+
+def follow(
+    options: AttackOptions,
+    checked: Preflight,
+    launcher: Launcher,
+    monitor: AttackMonitor,
+    stack: NodeSpec,
+    graph: Sequence[NodeSpec],
+    journal: Journal,
+    progress: Callable[[dict[str, Any]], None] | None,
+) -> list[dict[str, Any]]:
+    """Spin the monitor until the attack is over; returns the stack's crashes (query, exit code)."""
+    from advsim_ros.attack.run import query_record
+
+    clock = checked.window.clock(checked.scenario.frame_stamps_ns.tolist())
+    decision_log = int(
+        checked.scenario.frame_stamps_ns[checked.window.window_start_frame + checked.window.decision_index]
+    )
+
+    def offset(query_id: int) -> int:
+        return clock.to_sim(query_id, decision_log) - decision_log
+
+    crashes: list[dict[str, Any]] = []
+    graph_names = {spec.name for spec in graph}
+    search_done = options.replay_only
+    replay_next = len(journal.records) if options.replay_only else -1
+    connected_once = False
+    started = last_change = time.monotonic()
+    world_frame = checked.bag_config.world_frame
+    if options.replay_only and replay_next < options.replay_runs:
+        monitor.request_replay(replay_next, world_frame)
+    while True:
+        monitor.spin_once(_POLL)
+        finished = monitor.take_finished()
+        for query in finished:
+            journal.append(query_record(query, offset))
+        if finished:
+            last_change = time.monotonic()
+            if progress is not None:
+                progress({**vars(monitor.progress), "journaled": len(journal)})
+            if options.replay_only:
+                replay_next = len(journal.records)
+                if replay_next < options.replay_runs:
+                    monitor.request_replay(replay_next, world_frame)
+        for name, code in launcher.exited().items():
+            if name == SEARCH_NODE and code == 0:
+                launcher.stop(name)
+                search_done = True
+            elif name in graph_names:
+                log = launcher.log_path(name)
+                raise AttackError(f"node {name} exited with code {code}; its log ({log}):\n{_log_tail(log)}")
+            elif name == stack.name:
+                log = launcher.log_path(name)
+                if not connected_once:
+                    raise AttackError(
+                        f"the stack exited with code {code} before it connected; its log ({log}):\n{_log_tail(log, 10)}"
+                    )
+                crashes.append({"query_id": monitor.progress.query, "exit_code": code})
+                launcher.stop(name)
+                if not options.stack.restart:
+                    raise AttackError(f"the stack exited with code {code} during query {monitor.progress.query}")
+                launcher.start(stack)
+        if options.replay_only and len(journal.records) >= options.replay_runs:
+            break
+        if search_done and not options.replay_only and monitor.idle():
+            break
+        now = time.monotonic()
+        if not connected_once:
+            connected_once, missing = monitor.stack_connection()
+            if not connected_once and now - started > options.connect_timeout:
+                raise AttackError(
+                    f"the stack did not connect within {options.connect_timeout:.0f} s: {missing}; "
+                    f"stack log: {launcher.log_path(stack.name)}"
+                )
+        limit = options.startup_timeout if len(journal) == 0 else options.query_timeout
+        if now - last_change > limit:
+            raise AttackError(
+                f"no query finished for {limit:.0f} s ({len(journal)} journaled); logs in {launcher.log_dir}"
+            )
+    journal.mark_finished()
+    return crashes

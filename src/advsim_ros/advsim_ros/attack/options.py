@@ -1,0 +1,134 @@
+"""What one attack is: the log window, the stack under test, the search, where the outputs go."""
+
+from __future__ import annotations
+
+import dataclasses
+import shlex
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.contract import topics
+from advsim_ros.core.types import ScenarioError
+from advsim_ros.ros.launcher import python_module_command
+
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+REPO_PARAMS = PACKAGE_ROOT.parents[2] / "params"
+STACK_TOPIC_NAMES = tuple(spec.name for spec in topics.STACK_TOPICS)
+
+
+class AttackError(RuntimeError):
+    """The attack could not run to the end; the message says why and where the logs are."""
+
+
+def default_params_dir() -> Path:
+    """params/ of the source tree, else the installed share/advsim_ros/params."""
+    if REPO_PARAMS.is_dir():
+        return REPO_PARAMS
+    installed = Path(sys.prefix) / "share" / "advsim_ros" / "params"
+    if installed.is_dir():
+        return installed
+    raise ScenarioError(f"no params folder found (looked in {REPO_PARAMS} and {installed})")
+
+
+@dataclass(frozen=True)
+class StackSpec:
+    """The stack under test: a command started as its own process, with topic remappings."""
+
+    name: str  # log-file name and how the summary refers to it
+    command: tuple[str, ...]  # executable and arguments (the launcher appends --ros-args ...)
+    remappings: Mapping[str, str] = field(default_factory=dict)  # contract topic -> the stack's topic
+    params_files: tuple[Path, ...] = ()
+    restart: bool = True  # start it again when it exits during the attack
+    rename_node: bool = False  # reference stacks are single nodes; users' commands keep their names
+    sim_time: bool = True  # append `-p use_sim_time:=true` (off for commands that take no --ros-args)
+
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.remappings) - set(STACK_TOPIC_NAMES))
+        if unknown:
+            raise ScenarioError(
+                f"remapping of {', '.join(unknown)}: not a topic of the contract "
+                f"(one of {', '.join(STACK_TOPIC_NAMES)})"
+            )
+        for source, target in self.remappings.items():
+            if not target.startswith("/") or " " in target:
+                raise ScenarioError(f"remapping {source}:={target}: the target must be an absolute topic name")
+
+    @staticmethod
+    def reference(params_dir: Path | None = None) -> StackSpec:
+        """The modular reference stack (ground removal, detector, tracker, prediction, planner)."""
+        params = (params_dir or default_params_dir()) / "stack_modular.yaml"
+        return StackSpec(
+            "modular_stack",
+            python_module_command("advsim_ros.stacks.modular.node"),
+            params_files=(params,) if params.exists() else (),
+        )
+
+    @staticmethod
+    def learned(params_dir: Path | None = None) -> StackSpec:
+        """The imitation-learning reference stack (BEV raster -> planner)."""
+        params = (params_dir or default_params_dir()) / "stack_learned.yaml"
+        return StackSpec(
+            "learned_stack",
+            python_module_command("advsim_ros.stacks.learned.node"),
+            params_files=(params,) if params.exists() else (),
+        )
+
+    @staticmethod
+    def parse(text: str, remappings: Mapping[str, str] | None = None, params_dir: Path | None = None) -> StackSpec:
+        """'reference', 'learned', or a command line to run as the stack."""
+        if text in ("reference", "modular"):
+            spec = StackSpec.reference(params_dir)
+        elif text == "learned":
+            spec = StackSpec.learned(params_dir)
+        else:
+            try:
+                command = tuple(shlex.split(text))
+            except ValueError as error:
+                raise ScenarioError(f"--stack {text!r}: {error}") from None
+            if not command:
+                raise ScenarioError("--stack: empty command")
+            # a user's command line gets --ros-args only for remappings (ros2 launch takes none)
+            spec = StackSpec("stack", command, sim_time=False)
+        return dataclasses.replace(spec, remappings=dict(remappings or {}))
+
+
+@dataclass(frozen=True)
+class AttackOptions:
+    """One attack: which log window, which stack, which search, where the outputs go."""
+
+    bag: Path  # scenario bag (rosbag2 folder)
+    out_dir: Path
+    stack: StackSpec
+    algorithm: str = "bo"
+    queries: int = 75  # search queries (the original scenario and the re-runs of the best come on top)
+    actors: int = 1  # actors perturbed at once
+    seed: int = 0
+    window_start_frame: int | None = None  # None: the curated window with the highest collision rate
+    params_dir: Path | None = None  # None: the project's params/
+    plan_timeout: float = 10.0  # longest wait for a plan per frame [s]
+    connect_timeout: float = 120.0  # longest wait for the stack to subscribe to the LiDAR and publish plans [s]
+    startup_timeout: float = 600.0  # longest wait for the first score (feasible sets, background model) [s]
+    query_timeout: float = 300.0  # longest a single query may take before it is given up [s]
+    reruns: int = 2  # evaluations of each best query after the search (reproducibility)
+    rerun_top: int = 1  # how many of the best queries are re-run
+    parameter_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)  # node -> {param: value}
+    replay_only: bool = False  # `advsim replay`: score the bag's own scenario, no search, nothing moved
+    replay_runs: int = 1  # `advsim replay`: how many times
+
+    def __post_init__(self) -> None:
+        if self.queries < 1 and not self.replay_only:
+            raise ScenarioError(f"--queries: must be at least 1, got {self.queries}")
+        if self.actors < 1:
+            raise ScenarioError(f"--actors: must be at least 1, got {self.actors}")
+        if self.reruns < 0 or self.rerun_top < 0 or self.replay_runs < 1:
+            raise ScenarioError("--reruns and --rerun-top must be >= 0, --runs >= 1")
+        for name in ("plan_timeout", "connect_timeout", "startup_timeout", "query_timeout"):
+            if not getattr(self, name) > 0:
+                raise ScenarioError(f"{name}: must be positive, got {getattr(self, name)}")
+
+    @property
+    def params(self) -> Path:
+        return self.params_dir or default_params_dir()

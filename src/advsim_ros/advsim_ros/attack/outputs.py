@@ -1,0 +1,221 @@
+"""The outputs of an attack, written from its journal: OUTDIR/adversarial, OUTDIR/summary.json, OUTDIR/bev.png.
+
+The adversarial bag is a scenario bag of the attacked window in log time: the LiDAR the stack saw
+in the recorded query (the last re-run of the best), the perturbed actors (others as logged),
+the ego's logged (human) trajectory, the stack's plan (/planning/trajectory), the query's score
+(/advsim/score), its perturbation (/advsim/perturbation) and the drivable area the scorer used
+(/map/drivable), so that `advsim replay` scores it exactly as the attack did. The sweeps are
+re-simulated again here from the journaled tracks (re-simulation is a function of the perturbed
+world); their digest is compared with the one the scenario player took of what the stack
+received, and summary.json says whether they agree. Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+from advsim_ros.attack.checks import Preflight
+from advsim_ros.attack.options import AttackOptions
+from advsim_ros.attack.params import section
+from advsim_ros.attack.summary import attack_summary, recorded_query
+from advsim_ros.contract import codec, names, topics
+from advsim_ros.contract.digests import InputDigest
+from advsim_ros.contract.plan import path_msg
+from advsim_ros.contract.protocol import (
+    ScoreRecord,
+    perturbation_from_msg,
+    perturbation_msg,
+    score_from_msg,
+    score_msg,
+)
+from advsim_ros.contract.scenario import cloud_msg
+from advsim_ros.contract.spatial import odometry_msgs
+from advsim_ros.contract.topics import TopicSpec
+from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.core.curation import crop_frames
+from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
+from advsim_ros.core.journal import Journal, QueryRecord
+from advsim_ros.core.lidar.config import ResimConfig
+from advsim_ros.core.lidar.query import query_sweep
+from advsim_ros.core.lidar.resim import ResimModel
+from advsim_ros.core.types import Perturbation, Scenario, Sweep, replace_actors
+from advsim_ros.io.bag import BagReader, read_scenario_bag, write_scenario_bag
+from advsim_ros.io.cache import cache_root
+
+ADVERSARIAL_BAG = "adversarial"
+T = TypeVar("T")
+
+
+def write_outputs(
+    options: AttackOptions,
+    checked: Preflight,
+    journal: Journal,
+    wall_time: float,
+    crashes: list[dict[str, Any]],
+    domain_id: int | None,
+) -> dict[str, Any]:
+    """Write the adversarial bag (attacks only), summary.json and bev.png; return the summary."""
+    from advsim_ros.attack.bev import draw_bev
+
+    out_dir = options.out_dir.resolve()
+    records = journal.records
+    analysis = attack_summary(records)
+    window = checked.window
+    summary: dict[str, Any] = {
+        "scenario": {
+            "bag": str(checked.bag),
+            "scenario_id": checked.scenario.scenario_id,
+            "window_start_frame": window.window_start_frame,
+            "history_frames": window.history_frames,
+            "future_frames": window.future_frames,
+        },
+        "stack": {"name": options.stack.name, "command": list(options.stack.command)},
+        "search": {
+            "algorithm": options.algorithm,
+            "queries": options.queries,
+            "seed": options.seed,
+            "reruns": options.reruns,
+            "rerun_top": options.rerun_top,
+        },
+        **analysis,
+        "stack_crashes": crashes,
+        "wall_time_s": wall_time,
+        "ros_domain_id": domain_id,
+        "outputs": {"journal": str(journal.path), "bev": str(out_dir / "bev.png")},
+    }
+    scenario = read_scenario_bag(checked.bag, config=checked.bag_config, load_sweeps=True)
+    frames = window.frame_indices(scenario.num_frames)
+    adversarial = crop_frames(scenario, frames.start, frames.stop - 1)
+    if options.replay_only:
+        summary["replay"] = _replay_runs(records)
+        recorded_perturbation = recorded_message(checked.bag, topics.PERTURBATION, perturbation_from_msg)
+        summary["perturbed_actors"] = list(recorded_perturbation.actor_ids) if recorded_perturbation else []
+    else:
+        summary["perturbed_actors"] = [] if not records else _perturbed_actors(records)
+        recorded = recorded_query(records)
+        if recorded is not None:
+            adversarial, reproduced = _write_adversarial_bag(out_dir, options, checked, scenario, recorded)
+            summary["outputs"]["adversarial_bag"] = str(out_dir / ADVERSARIAL_BAG)
+            summary["recorded_inputs_reproduced"] = reproduced
+    write_json_atomically(out_dir / "summary.json", summary)
+    by_id = {record.query_id: record for record in records}
+    original_plan = by_id[0].plan if 0 in by_id else None
+    final = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
+    if options.replay_only and records:
+        final = records[-1]
+    draw_bev(
+        out_dir / "bev.png", scenario, adversarial, (original_plan, final.plan if final else None), window, summary
+    )
+    return summary
+
+
+def _perturbed_actors(records: list[QueryRecord]) -> list[str]:
+    searched = [record for record in records if record.actor_ids]
+    return list(searched[0].actor_ids) if searched else []
+
+
+def _replay_runs(records: list[QueryRecord]) -> dict[str, Any]:
+    values = [record.value for record in records]
+    return {"runs": len(records), "adversarial_losses": [None if v != v else v for v in values]}
+
+
+def _write_adversarial_bag(
+    out_dir: Path, options: AttackOptions, checked: Preflight, scenario: Scenario, recorded: QueryRecord
+) -> tuple[Scenario, bool]:
+    """The recorded query's window as a scenario bag; whether its sweeps digest to what the stack received."""
+    window = checked.window
+    frames = window.frame_indices(scenario.num_frames)
+    resim_parameters = checked.parameters["lidar_resim"]
+    seed = int(resim_parameters.get("seed", 0))
+    cache = Path(str(resim_parameters.get("cache_dir") or cache_root() / "resim"))
+    model = None
+    if recorded.tracks:
+        model = ResimModel.build(
+            scenario, cache_dir=cache, config=section(resim_parameters, "resim", ResimConfig, "resim")
+        )
+    bag = checked.bag_config
+    odometry = odometry_msgs(scenario.ego, bag.world_frame, bag.ego_frame)
+    sweeps_by_stamp = {sweep.stamp_ns: sweep for sweep in scenario.sweeps}
+    digest = InputDigest()
+    sweeps = []
+    for index in frames[: window.history_frames]:
+        stamp = int(scenario.frame_stamps_ns[index])
+        logged = sweeps_by_stamp[stamp]
+        pose = scenario.ego.poses[index]
+        points = query_sweep(model, scenario, logged, pose, recorded.tracks, seed)
+        sweep = Sweep(stamp, logged.frame_id, points, pose @ scenario.ego_T_sensor)
+        digest.frame(stamp, codec.encode(odometry[index]), pose)
+        digest.sweep(codec.encode(cloud_msg(sweep)))
+        sweeps.append(sweep)
+    drivable = drivable_area_for(
+        scenario,
+        section(checked.parameters["scorer"], "drivable", DrivableConfig, "/scorer drivable"),
+        scenario.ego_forward_offset,
+    )
+    cropped = crop_frames(scenario, frames.start, frames.stop - 1)
+    adversarial = Scenario(
+        scenario_id=f"{cropped.scenario_id}/adversarial",
+        frame_stamps_ns=cropped.frame_stamps_ns,
+        ego=cropped.ego,
+        actors=replace_actors(cropped.actors, recorded.tracks),
+        sweeps=tuple(sweeps),
+        ego_T_sensor=cropped.ego_T_sensor,
+        sensor=cropped.sensor,
+        road_map=cropped.road_map,
+        ego_size=cropped.ego_size,
+        ego_forward_offset=cropped.ego_forward_offset,
+        drivable_area=drivable,
+    )
+    decision = int(scenario.frame_stamps_ns[frames.start + window.decision_index])
+    extra = [
+        (
+            topics.SCORE.name,
+            names.QUERY_SCORE,
+            decision,
+            codec.encode(score_msg(ScoreRecord.from_dict(dict(recorded.score)), 0)),
+        ),
+        (
+            topics.PERTURBATION.name,
+            names.PERTURBATION,
+            decision,
+            codec.encode(
+                perturbation_msg(
+                    Perturbation(
+                        recorded.query_id,
+                        scenario.scenario_id,
+                        recorded.actor_ids,
+                        list(recorded.delta),
+                        recorded.algorithm,
+                    ),
+                    0,
+                )
+            ),
+        ),
+    ]
+    if recorded.plan is not None:
+        extra.append(
+            (topics.PLAN.name, names.PATH, decision, codec.encode(path_msg(recorded.plan, decision, bag.world_frame)))
+        )
+    write_scenario_bag(
+        adversarial, out_dir / ADVERSARIAL_BAG, config=bag, source=f"advsim attack of {checked.bag}", overwrite=True,
+        extra=extra,
+    )  # fmt: skip
+    return adversarial, digest.hexdigest() == recorded.score.get("input_digest")
+
+
+def recorded_message(path: Path, topic: TopicSpec, parse: Callable[[Any], T]) -> T | None:
+    """The first message of a topic of an (adversarial) bag, parsed; None when the bag has none."""
+    with BagReader(path) as reader:
+        connection = reader.connection(topic.name, topic.msgtype)
+        if connection is None:
+            return None
+        for _, _, message in reader.messages([connection]):
+            return parse(message)
+    return None
+
+
+def recorded_score(path: Path) -> ScoreRecord | None:
+    """The score stored in an adversarial bag (None when it has none)."""
+    return recorded_message(path, topics.SCORE, score_from_msg)

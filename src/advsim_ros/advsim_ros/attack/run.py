@@ -1,0 +1,208 @@
+"""`advsim attack` and `advsim replay` as a Python API: check, launch the graph, follow it, journal, outputs.
+
+    from advsim_ros.attack import AttackOptions, StackSpec, run_attack
+    result = run_attack(AttackOptions(bag=Path("log.bag"), out_dir=Path("out"), stack=StackSpec.reference()))
+
+Every node and the stack run as separate processes (own launcher; `ros2 launch` is not available
+from the wheels) on a reserved ROS_DOMAIN_ID with discovery on loopback, tied to this process
+(ros.launcher: nothing of the graph outlives it). This process follows the graph through a monitor
+node and appends every finished query to OUTDIR/queries.jsonl (the journal) as it finishes.
+Running the same attack again resumes from the journal: finished queries are replayed into the
+search, not recomputed; a journal of another attack is refused. The outputs (attack.outputs) are
+written from the journal alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from advsim_ros.attack.checks import GRAPH_NODES, Preflight, preflight
+from advsim_ros.attack.options import AttackOptions
+from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.digest import Digest
+from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
+from advsim_ros.ros.launcher import (
+    Launcher,
+    NodeSpec,
+    graph_environment,
+    graph_overrides,
+    python_module_command,
+    reserve_domain_id,
+)
+
+JOURNAL_NAME = "queries.jsonl"
+_NODE_MODULES = {name: f"advsim_ros.nodes.{name}" for name in GRAPH_NODES}
+_REPLAY_NODES = ("scorer", "scenario_player", "lidar_resim")
+_POLL = 0.1  # [s]
+
+
+@dataclass
+class AttackResult:
+    out_dir: Path
+    summary: dict[str, Any]
+
+    @property
+    def best_adversarial_loss(self) -> float | None:
+        best = self.summary.get("best")
+        return None if best is None else float(best["score"]["adversarial_loss"])
+
+
+def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
+    """The attack's parameters on top of params/ (window start added once the window is chosen)."""
+    overrides: dict[str, Any] = {
+        "/**": {"ros__parameters": {"window": {"scenario_bag": str(options.bag.resolve())}}},
+        "/scenario_player": {"ros__parameters": {"plan_timeout": options.plan_timeout}},
+        "/lidar_resim": {"ros__parameters": {"build_model": not options.replay_only}},
+    }
+    if not options.replay_only:
+        overrides["/perturber"] = {"ros__parameters": {"num_actors": options.actors}}
+        overrides["/search"] = {
+            "ros__parameters": {
+                "algorithm": options.algorithm,
+                "seed": options.seed,
+                "journal_file": str(journal),
+                "reruns": options.reruns,
+                "rerun_top": options.rerun_top,
+                options.algorithm: {"max_queries": options.queries},
+            }
+        }
+    for node, values in options.parameter_overrides.items():
+        entry = overrides.setdefault(f"/{node}", {"ros__parameters": {}})["ros__parameters"]
+        entry.update(json.loads(json.dumps(values)))
+    return overrides
+
+
+def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
+    """Everything that makes this attack this attack (not the run id, not the output folder)."""
+    params = Digest("attack parameters")
+    for node in sorted(checked.files):
+        for path in checked.files[node]:
+            params.text(path.name)
+            params.raw(path.read_bytes())
+    # the rest of the overrides repeats options named below; the user's own overrides count here
+    params.text(json.dumps(options.parameter_overrides, sort_keys=True, default=str))
+    params.text(f"plan_timeout={options.plan_timeout}")
+    bag = Digest("scenario bag")
+    bag.raw((checked.bag / "metadata.yaml").read_bytes())
+    stack = Digest("stack")
+    for path in options.stack.params_files:
+        stack.raw(path.read_bytes() if path.exists() else b"")
+    return Fingerprint(
+        {
+            "bag": str(checked.bag),
+            "bag_metadata": bag.hexdigest(),
+            "window_start_frame": checked.window.window_start_frame,
+            "stack": " ".join(options.stack.command),
+            "stack_remappings": dict(sorted(options.stack.remappings.items())),
+            "stack_parameters": stack.hexdigest(),
+            "mode": "replay" if options.replay_only else "attack",
+            "algorithm": options.algorithm,
+            "seed": options.seed,
+            "queries": options.queries,
+            "actors": options.actors,
+            "reruns": options.reruns,
+            "rerun_top": options.rerun_top,
+            "replay_runs": options.replay_runs,
+            "parameters": params.hexdigest(),
+        }
+    )
+
+
+def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None] | None = None) -> AttackResult:
+    """Run the whole attack (or the replay), resuming from OUTDIR's journal; write its outputs."""
+    out_dir = options.out_dir.resolve()
+    journal_path = out_dir / JOURNAL_NAME
+    overrides = _base_overrides(options, journal_path)
+    checked = preflight(options, overrides)
+    overrides["/**"]["ros__parameters"]["window"]["window_start_frame"] = checked.window.window_start_frame
+    fingerprint = _fingerprint(options, checked)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    journal = Journal.open(journal_path, fingerprint)
+    started = time.monotonic()
+    crashes: list[dict[str, Any]] = []
+    domain_id = None
+    if not journal.finished:
+        overrides_file = out_dir / "run" / "overrides.yaml"
+        write_text_atomically(overrides_file, yaml.safe_dump(overrides, sort_keys=False))
+        domain_id, crashes = _run_graph(options, checked, overrides_file, journal, progress)
+    from advsim_ros.attack.outputs import write_outputs
+
+    summary = write_outputs(options, checked, journal, time.monotonic() - started, crashes, domain_id)
+    return AttackResult(out_dir, summary)
+
+
+def _run_graph(
+    options: AttackOptions,
+    checked: Preflight,
+    overrides_file: Path,
+    journal: Journal,
+    progress: Callable[[dict[str, Any]], None] | None,
+) -> tuple[int, list[dict[str, Any]]]:
+    from advsim_ros.attack.follow import follow
+    from advsim_ros.ros.monitor import AttackMonitor  # rclpy only once the graph's environment is set
+
+    run_id = secrets.randbelow(2**63 - 1) + 1
+    log_dir = options.out_dir.resolve() / "run" / "logs"
+    nodes = _REPLAY_NODES if options.replay_only else GRAPH_NODES
+    specs = [
+        NodeSpec(
+            name,
+            python_module_command(_NODE_MODULES[name]),
+            params_files=(*checked.files[name], overrides_file),
+            parameters={"run_id": run_id},
+        )
+        for name in nodes
+    ]
+    stack = NodeSpec(
+        options.stack.name,
+        options.stack.command,
+        remappings=options.stack.remappings,
+        params_files=options.stack.params_files,
+        parameters={"use_sim_time": True} if options.stack.sim_time else {},
+        rename_node=options.stack.rename_node,
+    )
+    with reserve_domain_id() as lease:
+        env = graph_environment(lease.domain_id)
+        os.environ.update(graph_overrides(lease.domain_id))  # the monitor in this process joins the same graph
+        graph_file = options.out_dir.resolve() / "run" / "graph.json"  # for people who want to look at the live graph
+        write_text_atomically(graph_file, json.dumps({"ros_domain_id": lease.domain_id, "run_id": run_id}))
+        skip = frozenset(record.query_id for record in journal.records)
+        with Launcher(env, log_dir, lease) as launcher, AttackMonitor(run_id, skip) as monitor:
+            launcher.start(stack)
+            for spec in specs:
+                launcher.start(spec)
+            crashes = follow(options, checked, launcher, monitor, stack, specs, journal, progress)
+    return lease.domain_id, crashes
+
+
+def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryRecord:
+    """The journal line of a finished query (plan moved to log time)."""
+    from advsim_ros.contract.codec import ContractError
+    from advsim_ros.contract.plan import plan_from_path
+
+    plan = None
+    episode = finished.episode
+    if episode is not None and episode.decision_plan is not None:
+        try:
+            plan = plan_from_path(episode.decision_plan, clock_offset(finished.perturbation.query_id))
+        except ContractError:
+            plan = None
+    perturbation = finished.perturbation
+    return QueryRecord(
+        query_id=perturbation.query_id,
+        algorithm=perturbation.algorithm,
+        actor_ids=tuple(perturbation.actor_ids),
+        delta=tuple(float(v) for v in perturbation.delta),
+        score=finished.score.as_dict(),
+        tracks=tuple(finished.tracks),
+        plan=plan,
+    )

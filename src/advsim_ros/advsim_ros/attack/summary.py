@@ -1,0 +1,118 @@
+"""What an attack found, from its journal: the original, the best, whether the best reproduces.
+
+Re-runs of a query are recognised by their delta (the same point as a searched query). A query
+reproduces when every evaluation of it (the search's and the re-runs) succeeded with the same
+L_adv and the same collision outcome; then whether the stack's inputs and plans were identical
+too tells a non-deterministic stack (same inputs, different plans) from a framework fault
+(different inputs). A best query that does not reproduce is reported as flaky, not as the result.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from advsim_ros.core.journal import QueryRecord, ranked_queries
+from advsim_ros.core.search.driver import ORIGINAL, RERUN
+
+REPRODUCE_TOLERANCE = 1e-9  # relative |L_adv| difference still counted as the same value
+
+
+@dataclass(frozen=True)
+class Reproduction:
+    """A searched query and its re-runs."""
+
+    query_id: int
+    evaluations: tuple[QueryRecord, ...]  # the searched evaluation first, then each re-run
+
+    @property
+    def values(self) -> list[float]:
+        return [record.value for record in self.evaluations]
+
+    @property
+    def reproduced(self) -> bool:
+        values = self.values
+        if not all(math.isfinite(v) for v in values):
+            return False
+        reference = values[0]
+        same_value = all(abs(v - reference) <= REPRODUCE_TOLERANCE * max(1.0, abs(reference)) for v in values)
+        collisions = {record.score.get("collision_5s") for record in self.evaluations}
+        return same_value and len(collisions) == 1
+
+    def as_json(self) -> dict[str, Any]:
+        values = self.values
+        finite = [v for v in values if math.isfinite(v)]
+        digests = {key: len({r.score.get(f"{key}_digest") for r in self.evaluations}) == 1 for key in ("input", "plan")}
+        return {
+            "query_id": self.query_id,
+            "rerun_query_ids": [record.query_id for record in self.evaluations[1:]],
+            "adversarial_losses": [None if math.isnan(v) else v for v in values],
+            "spread": (max(finite) - min(finite)) if finite else None,
+            "reproduced": self.reproduced,
+            "flaky": not self.reproduced,
+            "inputs_identical": digests["input"],
+            "plans_identical": digests["plan"],
+        }
+
+
+def reproductions(records: Sequence[QueryRecord]) -> list[Reproduction]:
+    """Every searched query that was re-run, with its re-runs, best first."""
+    searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
+    reruns = [r for r in records if r.algorithm == RERUN]
+    found = []
+    for query_id in ranked_queries({r.query_id: r.value for r in searched}, len(searched)):
+        source = next(r for r in searched if r.query_id == query_id)
+        again = tuple(r for r in reruns if r.delta == source.delta and r.actor_ids == source.actor_ids)
+        if again:
+            found.append(Reproduction(query_id, (source, *again)))
+    return found
+
+
+def query_entry(record: QueryRecord) -> dict[str, Any]:
+    return {
+        "query_id": record.query_id,
+        "algorithm": record.algorithm,
+        "actor_ids": list(record.actor_ids),
+        "delta": list(record.delta),
+        "score": dict(record.score),
+    }
+
+
+def attack_summary(records: Sequence[QueryRecord]) -> dict[str, Any]:
+    """The analysis part of summary.json (see docs/outputs.md)."""
+    by_id = {record.query_id: record for record in records}
+    searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
+    checked = reproductions(records)
+    reproducible = [item for item in checked if item.reproduced]
+    best_record = by_id[reproducible[0].query_id] if reproducible else None
+    if not checked:  # no re-runs asked for: the best value stands unverified
+        ranked = ranked_queries({r.query_id: r.value for r in searched}, 1)
+        best_record = by_id[ranked[0]] if ranked else None
+    final = recorded_query(records)
+    best = None
+    if best_record is not None:
+        best = query_entry(best_record)
+        item = next((c for c in checked if c.query_id == best_record.query_id), None)
+        best["reproduction"] = item.as_json() if item is not None else None
+    return {
+        "original": by_id[0].score if 0 in by_id else None,
+        "best": best,
+        "adversarial": final.score if final is not None else None,
+        "recorded_query_id": final.query_id if final is not None else None,
+        "reproductions": [item.as_json() for item in checked],
+        "flaky": [item.query_id for item in checked if not item.reproduced],
+        "queries": [query_entry(record) for record in records],
+        "failed_queries": sum(1 for r in searched if not r.ok),
+    }
+
+
+def recorded_query(records: Sequence[QueryRecord]) -> QueryRecord | None:
+    """The query the adversarial bag records: the last re-run of the best (the best searched query without re-runs)."""
+    checked = reproductions(records)
+    if checked:
+        return checked[0].evaluations[-1]
+    searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
+    ranked = ranked_queries({r.query_id: r.value for r in searched}, 1)
+    return next((r for r in searched if ranked and r.query_id == ranked[0]), None)

@@ -1,0 +1,130 @@
+"""Messages as CDR bytes: one rosbags typestore (ROS 2 Jazzy + advsim_msgs), stamps and headers.
+
+The graph's nodes publish and subscribe raw CDR (rclpy's ``publish(bytes)`` and ``raw=True``
+subscriptions) built here, and the bag layer writes the same bytes, so a recorded message is
+exactly what was on the topic. advsim_msgs types are registered from the .msg files.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import struct
+from pathlib import Path
+from typing import Any
+
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from advsim_ros.contract import names
+from advsim_ros.core.types import ScenarioError
+
+MSG_DIR_ENV = "ADVSIM_MSG_DIR"  # folder of advsim_msgs/msg/*.msg, overriding the search below
+NS_PER_S = 1_000_000_000
+_CDR_HEADER_BYTES = 4  # encapsulation kind and options precede the payload
+
+
+class ContractError(ScenarioError):
+    """A message that does not fit the contract (cannot become the core type it stands for)."""
+
+
+def msg_definitions_dir() -> Path:
+    """The folder of advsim_msgs/msg/*.msg: $ADVSIM_MSG_DIR, the source tree, or the installed share."""
+    override = os.environ.get(MSG_DIR_ENV)
+    candidates = [Path(override)] if override else []
+    candidates += [parent / "msg_defs" / "advsim_msgs" / "msg" for parent in Path(__file__).resolve().parents]
+    for candidate in candidates:
+        if candidate.is_dir() and any(candidate.glob("*.msg")):
+            return candidate
+    installed = _installed_msg_dir()
+    if installed is not None:
+        return installed
+    raise ContractError(f"advsim_msgs message definitions not found (looked in {[str(c) for c in candidates]})")
+
+
+def _installed_msg_dir() -> Path | None:
+    """share/advsim_msgs/msg of an installed (colcon or venv) advsim_msgs, when ament_index can find it."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        folder = Path(get_package_share_directory("advsim_msgs")) / "msg"
+    except (ImportError, LookupError, OSError, ValueError):  # not installed, or AMENT_PREFIX_PATH unset
+        return None
+    return folder if folder.is_dir() and any(folder.glob("*.msg")) else None
+
+
+@functools.cache
+def advsim_typesdict() -> dict[str, Any]:
+    """advsim_msgs' field definitions, parsed from the .msg files."""
+    types: dict[str, Any] = {}
+    for path in sorted(msg_definitions_dir().glob("*.msg")):
+        types.update(get_types_from_msg(path.read_text(encoding="utf-8"), f"advsim_msgs/msg/{path.stem}"))
+    return types
+
+
+@functools.cache
+def typestore() -> Typestore:
+    """The shared typestore: ROS 2 Jazzy's types plus advsim_msgs (read-only after creation)."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(advsim_typesdict())
+    return store
+
+
+def message(type_name: str, **fields: Any) -> Any:
+    """A message object of the shared typestore."""
+    return typestore().types[type_name](**fields)
+
+
+def encode(value: Any) -> bytes:
+    """CDR bytes of a typestore message object."""
+    return bytes(typestore().serialize_cdr(value, value.__msgtype__))
+
+
+def decode(raw: bytes | memoryview, type_name: str) -> Any:
+    """A typestore message object from CDR bytes; ContractError when they do not decode as that type."""
+    try:
+        return typestore().deserialize_cdr(raw, type_name)
+    except Exception as error:  # rosbags raises several types for truncated or foreign bytes
+        raise ContractError(f"bytes do not decode as {type_name}: {error}") from error
+
+
+# ----------------------------------------------------------------------------- stamps and headers
+
+
+def stamp_ns(time: Any) -> int:
+    """builtin_interfaces/Time (rclpy or rosbags object) as integer nanoseconds."""
+    return int(time.sec) * NS_PER_S + int(time.nanosec)
+
+
+def time_msg(value_ns: int) -> Any:
+    sec, nanosec = divmod(int(value_ns), NS_PER_S)
+    return message(names.TIME, sec=sec, nanosec=nanosec)
+
+
+def header_msg(value_ns: int, frame_id: str) -> Any:
+    return message(names.HEADER, stamp=time_msg(value_ns), frame_id=frame_id)
+
+
+def clock_cdr(value_ns: int) -> bytes:
+    return encode(message(names.CLOCK, clock=time_msg(value_ns)))
+
+
+def header_stamp_ns(raw: bytes | memoryview) -> int:
+    """Header stamp of a CDR message whose first field is std_msgs/Header, without decoding the rest."""
+    little = raw[1] == 1  # encapsulation CDR_LE = 0x0001, CDR_BE = 0x0000
+    sec, nanosec = struct.unpack_from("<iI" if little else ">iI", raw, _CDR_HEADER_BYTES)
+    return int(sec) * NS_PER_S + int(nanosec)
+
+
+def restamp(raw: bytes, value_ns: int) -> bytes:
+    """A copy of a header-first CDR message with its header stamp replaced (frame and payload unchanged)."""
+    little = raw[1] == 1
+    sec, nanosec = divmod(int(value_ns), NS_PER_S)
+    patched = bytearray(raw)
+    struct.pack_into("<iI" if little else ">iI", patched, _CDR_HEADER_BYTES, sec, nanosec)
+    return bytes(patched)
+
+
+def after_stamp(raw: bytes | memoryview) -> memoryview:
+    """Everything of a header-first CDR message after its header stamp (digests that must not see sim time)."""
+    return memoryview(raw)[_CDR_HEADER_BYTES + 8 :]

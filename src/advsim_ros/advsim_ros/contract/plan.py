@@ -1,0 +1,56 @@
+"""The stack's plan on the wire: nav_msgs/Path <-> Plan (positions, headings, stamps)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from advsim_ros.contract import names
+from advsim_ros.contract.codec import ContractError, header_msg, message, stamp_ns
+from advsim_ros.core.types import Plan
+
+PLAN_STEP_NS = 100_000_000  # poses stamped 0 (stacks that stamp only the header) are taken this far apart [ns]
+
+
+def path_msg(plan: Plan, header_stamp_ns: int, frame_id: str, z: float = 0.0) -> Any:
+    """A Plan as nav_msgs/Path: header at the sweep's stamp, each pose at its own future time, at height z [m]."""
+    poses = []
+    for stamp, (x, y), yaw in zip(plan.stamps_ns.tolist(), plan.xy.tolist(), plan.yaws.tolist(), strict=True):
+        orientation = message(names.QUATERNION, x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
+        position = message(names.POINT, x=x, y=y, z=float(z))
+        poses.append(
+            message(
+                names.POSE_STAMPED,
+                header=header_msg(stamp, frame_id),
+                pose=message(names.POSE, position=position, orientation=orientation),
+            )
+        )
+    return message(names.PATH, header=header_msg(header_stamp_ns, frame_id), poses=poses)
+
+
+def plan_from_path(path: Any, time_offset_ns: int = 0) -> Plan:
+    """A nav_msgs/Path (rclpy or rosbags object) as a Plan, pose stamps shifted by -time_offset_ns.
+
+    Poses stamped 0 (stacks that stamp only the header) are taken as 0.1 s apart after the header.
+    ContractError for an empty path, non-finite poses or stamps that do not increase.
+    """
+    poses = path.poses
+    if not poses:
+        raise ContractError("the plan (nav_msgs/Path) has no poses")
+    header_ns = stamp_ns(path.header.stamp)
+    stamps = np.array([stamp_ns(pose.header.stamp) for pose in poses], dtype=np.int64)
+    if np.all(stamps == 0):
+        stamps = header_ns + PLAN_STEP_NS * np.arange(1, len(poses) + 1, dtype=np.int64)
+    xy = np.array([[pose.pose.position.x, pose.pose.position.y] for pose in poses], dtype=np.float64)
+    quaternions = np.array(
+        [[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w] for p in poses]
+    )
+    if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(quaternions))):
+        raise ContractError("the plan (nav_msgs/Path) has NaN or infinite poses")
+    if np.any(np.diff(stamps) <= 0):
+        raise ContractError("the plan's pose stamps are not strictly increasing")
+    x, y, z, w = quaternions.T
+    yaws = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return Plan(stamps_ns=stamps - time_offset_ns, xy=xy, yaws=yaws)

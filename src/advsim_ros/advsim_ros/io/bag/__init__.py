@@ -1,0 +1,25 @@
+"""Scenarios as rosbag2 bags (rosbags library): MCAP written, MCAP and sqlite3 read.
+
+A scenario bag is a rosbag2 folder (metadata.yaml + storage file, as ``ros2 bag record``
+makes them); docs/data.md documents its topics. Users' own bags need only the LiDAR topic
+and the ego pose (odometry or /tf). Modules: ``config`` (topics and frames), ``storage``
+(opening bags), ``read`` and ``write`` (scenarios), ``poses`` (users' ego poses).
+"""
+
+from advsim_ros.io.bag.config import BagConfig, BagError, load_bag_config
+from advsim_ros.io.bag.read import read_scenario_bag
+from advsim_ros.io.bag.storage import BagReader, BagSummary, TopicSummary, iter_bag_sweeps, summarize_bag
+from advsim_ros.io.bag.write import write_scenario_bag
+
+__all__ = [
+    "BagConfig",
+    "BagError",
+    "BagReader",
+    "BagSummary",
+    "TopicSummary",
+    "iter_bag_sweeps",
+    "load_bag_config",
+    "read_scenario_bag",
+    "summarize_bag",
+    "write_scenario_bag",
+]

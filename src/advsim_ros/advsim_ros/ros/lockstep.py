@@ -1,0 +1,236 @@
+"""The episode protocol's lock-step replay of one query, as the scenario player runs it.
+
+For every history frame: /clock, the ego pose (/tf, /ego/odom) and a FrameRequest (lidar_resim
+answers with the sweep on the LiDAR topic); then wait until that sweep was delivered and,
+when configured, the stack's plan for it came back. No frame is skipped: the replay runs as
+fast as its slowest participant. A stack that is gone (its plan publisher vanished or was
+replaced) or silent past the timeout ends the query early. Everything the stack was sent and
+answered is digested in log time, so runs and re-runs of the same query can be compared.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from rclpy.node import Node
+
+from advsim_ros.contract import codec, names, topics
+from advsim_ros.contract.digests import InputDigest, PlanDigest
+from advsim_ros.contract.enums import Outcome, Phase
+from advsim_ros.contract.protocol import EpisodeRecord, FrameRequestRecord
+from advsim_ros.core.episode import EpisodeClock
+from advsim_ros.core.types import FloatArray
+
+POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
+KEPT = 50  # messages remembered per stamped stream
+# Nodes of the attack graph itself; every other node on the domain belongs to the stack.
+GRAPH_NODE_NAMES = frozenset({"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor"})
+
+
+class StampedArrivals:
+    """CDR messages of one topic by header stamp, with a wait that wakes on arrival (no busy waiting)."""
+
+    def __init__(self) -> None:
+        self._messages: dict[int, bytes] = {}
+        self._condition = threading.Condition()
+
+    def add(self, raw: bytes) -> None:
+        with self._condition:
+            self._messages[codec.header_stamp_ns(raw)] = raw
+            while len(self._messages) > KEPT:
+                del self._messages[min(self._messages)]
+            self._condition.notify_all()
+
+    def take(self, stamp_ns: int) -> bytes | None:
+        with self._condition:
+            return self._messages.pop(stamp_ns, None)
+
+    def wait(self, stamp_ns: int, timeout: float, give_up: Callable[[], bool]) -> bytes | None:
+        """The message stamped stamp_ns once it arrived, or None after the timeout or when give_up() says so."""
+        deadline = time.monotonic() + timeout
+        with self._condition:
+            while stamp_ns not in self._messages:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or give_up():
+                    return None
+                self._condition.wait(min(remaining, POLL))
+            return self._messages.pop(stamp_ns)
+
+
+def stack_endpoints(node: Node, topic: str, publishers: bool) -> list[Any]:
+    """Endpoints of the stack (every node not of the attack graph) on a topic."""
+    infos = node.get_publishers_info_by_topic(topic) if publishers else node.get_subscriptions_info_by_topic(topic)
+    return [info for info in infos if info.node_name not in GRAPH_NODE_NAMES]
+
+
+def stack_publishes(node: Node, topic: topics.TopicSpec) -> bool:
+    return bool(stack_endpoints(node, topic.name, True))
+
+
+def connected(node: Node, latched: Iterable[Any]) -> bool:
+    """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, latched topics matched."""
+    stack = bool(stack_endpoints(node, topics.LIDAR.name, False)) and stack_publishes(node, topics.PLAN)
+    resim = node.count_subscribers(topics.FRAME_REQUEST.name) >= 1 and node.count_publishers(topics.LIDAR.name) >= 1
+    matched = all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in latched)
+    return stack and resim and matched
+
+
+def wait_until_connected(node: Node, latched: Iterable[Any], timeout: float, stop: threading.Event) -> bool:
+    """Wait (up to timeout) until ``connected``; the orchestrator reports a stack that never connects."""
+    publishers = list(latched)
+    deadline = time.monotonic() + timeout
+    while not connected(node, publishers):
+        if time.monotonic() >= deadline or stop.wait(POLL):
+            return False
+    return True
+
+
+class StackLiveness:
+    """Whether the stack's plan publisher changed since the query began (exit, crash, restart).
+
+    A process that crashed stays in the DDS graph until its lease expires, but a restarted one
+    brings a new publisher: no publisher, or one that was not there when the query began,
+    counts (an old one expiring does not), and is remembered for the rest of the query.
+    """
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+        self._at_start: frozenset[bytes] = frozenset()
+        self.lost = False
+
+    def _publishers(self) -> frozenset[bytes]:
+        return frozenset(bytes(info.endpoint_gid) for info in stack_endpoints(self._node, topics.PLAN.name, True))
+
+    def begin(self) -> None:
+        self._at_start = self._publishers()
+        self.lost = False
+
+    def check(self) -> bool:
+        current = self._publishers()
+        if not current or current - self._at_start:
+            self.lost = True
+        return self.lost
+
+
+@dataclass(frozen=True, eq=False)
+class HistoryFrame:
+    """One frame of the window's history as the player replays it."""
+
+    log_frame: int  # index in the log
+    log_stamp_ns: int
+    odometry: bytes  # CDR of nav_msgs/Odometry at the log stamp
+    world_T_ego: FloatArray  # (4, 4)
+
+
+@dataclass(frozen=True)
+class LockStepConfig:
+    plan_timeout: float  # longest wait for the stack's plan of one frame [s, wall clock]
+    sweep_timeout: float  # longest wait for the re-simulated sweep of one frame [s, wall clock]
+    wait_for_every_plan: bool  # wait for a plan at every frame, else only at the decision frame
+
+
+@dataclass
+class Outputs:
+    """Where the replay sends things (publish functions of the player node)."""
+
+    clock: Callable[[Any], None]
+    tf: Callable[[Any], None]
+    odometry: Callable[[Any], None]
+    frame_request: Callable[[FrameRequestRecord], None]
+    episode: Callable[[EpisodeRecord, Any, Any], None]  # record, detections, predictions (decoded or None)
+    tf_message: Callable[[int, FloatArray], Any]  # sim stamp, world_T_ego -> tf2_msgs/TFMessage
+
+
+@dataclass
+class Inputs:
+    """What the replay waits for (filled by the player's subscriptions)."""
+
+    sweeps: StampedArrivals
+    plans: StampedArrivals
+    detections: StampedArrivals
+    predictions: StampedArrivals
+
+
+def replay_query(
+    query_id: int,
+    frames: Iterable[HistoryFrame],
+    clock: EpisodeClock,
+    config: LockStepConfig,
+    outputs: Outputs,
+    inputs: Inputs,
+    liveness: StackLiveness,
+    stack_outputs: tuple[bool, bool],
+    stop: threading.Event,
+) -> EpisodeRecord:
+    """Replay one query's history in lock-step; returns (and publishes) its Episode DONE.
+
+    ``stack_outputs``: whether the stack publishes detections and predictions; then those of
+    the decision frame are awaited too, so whether a query has them never depends on timing.
+    """
+    history = list(frames)
+    count = len(history)
+    segment = clock.segment(query_id)
+    outputs.episode(EpisodeRecord(query_id, Phase.START, 0, count, segment), None, None)
+    inputs_digest, plans_digest = InputDigest(), PlanDigest()
+    delivered = received = awaited = 0
+    plans_flowing = True
+    decision_plan: Any = None
+    answers: dict[str, Any] = {"detections": None, "predictions": None}
+    liveness.begin()
+
+    def watch_stack() -> bool:  # while waiting for a sweep: note whether the stack is gone, give up only on stop
+        liveness.check()
+        return stop.is_set()
+
+    def stack_gone() -> bool:
+        return liveness.check() or stop.is_set()
+
+    for index, frame in enumerate(history):
+        sim = clock.to_sim(query_id, frame.log_stamp_ns)
+        decision = index == count - 1
+        outputs.clock(codec.clock_cdr(sim))
+        outputs.tf(outputs.tf_message(sim, frame.world_T_ego))
+        outputs.odometry(codec.restamp(frame.odometry, sim))
+        outputs.frame_request(FrameRequestRecord(query_id, index, frame.log_frame, sim, frame.world_T_ego))
+        inputs_digest.frame(frame.log_stamp_ns, frame.odometry, frame.world_T_ego)
+        sweep = inputs.sweeps.wait(sim, config.sweep_timeout, watch_stack)
+        if sweep is not None:
+            delivered += 1
+            inputs_digest.sweep(sweep)
+        if decision or (config.wait_for_every_plan and plans_flowing):
+            awaited += 1
+            plan = inputs.plans.wait(sim, config.plan_timeout, stack_gone)
+            if plan is None:
+                plans_flowing = False  # do not wait at every frame for a stack that has stopped answering
+            else:
+                received += 1
+                decoded = codec.decode(plan, names.PATH)
+                plans_digest.plan(decoded, sim - frame.log_stamp_ns)
+                if decision:
+                    decision_plan = decoded
+                    for (kind, arrivals), expected in zip(
+                        (("detections", inputs.detections), ("predictions", inputs.predictions)),
+                        stack_outputs,
+                        strict=True,
+                    ):
+                        found = arrivals.wait(sim, config.plan_timeout, stack_gone) if expected else None
+                        answers[kind] = None if found is None else codec.decode(found, names.ACTOR_TRACK_ARRAY)
+        phase = Phase.DECISION if decision else Phase.REPLAY
+        outputs.episode(EpisodeRecord(query_id, phase, index, count, segment, delivered, received), None, None)
+    liveness.check()
+    if liveness.lost:
+        outcome = Outcome.STACK_LOST
+    elif received < awaited or delivered < count:
+        outcome = Outcome.PLANS_MISSING
+    else:
+        outcome = Outcome.COMPLETE
+    done = EpisodeRecord(
+        query_id, Phase.DONE, count - 1, count, segment, delivered, received, outcome,
+        inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan,
+    )  # fmt: skip
+    outputs.episode(done, answers["detections"], answers["predictions"])
+    return done

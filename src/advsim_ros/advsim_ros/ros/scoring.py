@@ -1,0 +1,97 @@
+"""The scorer's step from a finished episode to its QueryScore record (core.scoring does the maths)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from advsim_ros.contract.codec import ContractError, stamp_ns
+from advsim_ros.contract.enums import Outcome, Status
+from advsim_ros.contract.plan import plan_from_path
+from advsim_ros.contract.protocol import EpisodeRecord, ScoreRecord
+from advsim_ros.contract.tracks import TrackArrayRecord
+from advsim_ros.core.episode import EpisodeClock
+from advsim_ros.core.metrics import Predictions
+from advsim_ros.core.objective import ScorerSettings
+from advsim_ros.core.scoring import Detections, evaluate_query
+from advsim_ros.core.types import ActorTrack, DrivableArea, Scenario, ScenarioError
+
+
+def _detections(record: TrackArrayRecord | None) -> Detections | None:
+    if record is None:
+        return None
+    boxes = np.array(
+        [[t.xyz[0, 0], t.xyz[0, 1], t.yaw[0], t.size[0], t.size[1]] for t in record.tracks], dtype=np.float64
+    ).reshape(-1, 5)
+    return Detections(boxes, np.array([t.confidence for t in record.tracks], dtype=np.float64))
+
+
+def _predictions(record: TrackArrayRecord | None, sim_offset_ns: int) -> Predictions | None:
+    """Predictions in log time; tracks whose stamps differ from the first one's are left out (one time base)."""
+    if record is None or not record.tracks:
+        return None
+    stamps = record.tracks[0].stamps_ns
+    same = [t for t in record.tracks if np.array_equal(t.stamps_ns, stamps)]
+    return Predictions(stamps - sim_offset_ns, np.stack([t.xyz[:, :2] for t in same]))
+
+
+def score_episode(
+    episode: EpisodeRecord,
+    moved: Sequence[ActorTrack],
+    scenario: Scenario,
+    clock: EpisodeClock,
+    decision_frame: int,
+    settings: ScorerSettings,
+    drivable: DrivableArea | None,
+    wall_time: float,
+) -> ScoreRecord:
+    """The QueryScore of a finished query: a failure status from the outcome, else the evaluated plan."""
+    common = {
+        "wall_time": wall_time,
+        "sweeps_delivered": episode.sweeps_delivered,
+        "plans_received": episode.plans_received,
+        "input_digest": episode.input_digest,
+        "plan_digest": episode.plan_digest,
+    }
+    query_id = episode.query_id
+    if episode.outcome == Outcome.STACK_LOST:
+        reason = "the stack stopped during the query (its plan publisher vanished or was replaced: crash, restart)"
+        return ScoreRecord(query_id, Status.STACK_ERROR, reason, **common)
+    if episode.outcome == Outcome.PLANS_MISSING or episode.decision_plan is None:
+        reason = (
+            f"the stack answered {episode.plans_received} of the frames it was waited for "
+            f"({episode.sweeps_delivered} of {episode.num_frames} sweeps delivered)"
+        )
+        return ScoreRecord(query_id, Status.STACK_TIMEOUT, reason, **common)
+    decision_log = int(scenario.frame_stamps_ns[decision_frame])
+    offset = clock.to_sim(query_id, decision_log) - decision_log
+    try:
+        if stamp_ns(episode.decision_plan.header.stamp) != decision_log + offset:
+            raise ContractError("the decision plan is not stamped with the decision sweep's stamp")
+        plan = plan_from_path(episode.decision_plan, offset)
+        evaluation = evaluate_query(
+            plan, scenario, moved, decision_frame, settings, drivable,
+            _detections(episode.detections), _predictions(episode.predictions, offset),
+        )  # fmt: skip
+    except ScenarioError as error:
+        return ScoreRecord(query_id, Status.STACK_ERROR, f"unusable plan: {error}", **common)
+    terms, metrics = evaluation.terms, evaluation.metrics
+    return ScoreRecord(
+        query_id,
+        Status.OK,
+        adversarial_loss=terms.value,
+        imitation_loss=terms.imitation,
+        collision_loss=terms.collision,
+        comfort_loss=terms.comfort,
+        collision_3s=metrics.at("collision", 3.0),
+        collision_5s=metrics.at("collision", 5.0),
+        l2_human_3s=metrics.at("l2_human", 3.0),
+        l2_human_5s=metrics.at("l2_human", 5.0),
+        lateral_acceleration=metrics.lateral_acceleration,
+        jerk=metrics.jerk,
+        detection_ap=evaluation.detection_ap,
+        prediction_l2_3s=metrics.at("prediction_l2", 3.0),
+        prediction_l2_5s=metrics.at("prediction_l2", 5.0),
+        **common,
+    )
