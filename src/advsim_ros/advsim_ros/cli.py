@@ -253,6 +253,13 @@ def _add_stack_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-restart", action="store_true", help="do not restart the stack when it exits")
     parser.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
     parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NODE.KEY=VALUE",
+        help="a node parameter for this run, e.g. perturber.num_candidates=20000 (repeatable; VALUE is YAML)",
+    )
+    parser.add_argument(
         "--connect-timeout",
         type=float,
         default=120.0,
@@ -279,6 +286,26 @@ def _stack_spec(args: argparse.Namespace) -> StackSpec:
         remappings[source] = target
     spec = StackSpec.parse(args.stack, remappings)
     return dataclasses.replace(spec, restart=not args.no_restart)
+
+
+def _parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """--param NODE.KEY=VALUE items as {node: {key: value}} (dotted keys nest as in the params files)."""
+    overrides: dict[str, dict[str, Any]] = {}
+    for item in items:
+        name, separator, text = item.partition("=")
+        node, dot, key = name.partition(".")
+        if not separator or not dot or not node or not key:
+            raise CommandError(f"--param {item!r}: expected NODE.KEY=VALUE, e.g. perturber.num_candidates=20000")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as error:
+            raise CommandError(f"--param {item!r}: the value is not valid YAML ({error})") from error
+        entry = overrides.setdefault(node, {})
+        *parents, leaf = key.split(".")
+        for parent in parents:
+            entry = entry.setdefault(parent, {})
+        entry[leaf] = value
+    return overrides
 
 
 def _progress_printer(total: int) -> Any:
@@ -315,6 +342,7 @@ def _run_attack(args: argparse.Namespace) -> int:
         connect_timeout=args.connect_timeout,
         reruns=args.reruns,
         rerun_top=args.rerun_top,
+        parameter_overrides=_parameter_overrides(args.param),
     )
     return _attack_and_report(options)
 
@@ -349,6 +377,7 @@ def _run_replay(args: argparse.Namespace) -> int:
         window_start_frame=0,
         replay_only=True,
         replay_runs=args.runs,
+        parameter_overrides=_parameter_overrides(args.param),
     )
     recorded = recorded_score(args.bag)
     try:

@@ -8,6 +8,7 @@ input starts nothing and loses nothing.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 from dataclasses import dataclass
@@ -40,6 +41,10 @@ class Preflight:
 
 
 GRAPH_NODES = ("scorer", "scenario_player", "lidar_resim", "perturber", "search")
+
+
+def _fields(config_type: type[Any]) -> set[str]:
+    return {field.name for field in dataclasses.fields(config_type)}
 
 
 def _stack_resolvable(options: AttackOptions) -> None:
@@ -90,6 +95,21 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     from advsim_ros.nodes.lidar_resim import ResimNodeConfig
     from advsim_ros.nodes.scenario_player import PlayerConfig
     from advsim_ros.nodes.search import SearchNodeConfig
+
+    shared = {"window", "bag", "run_id"}
+    known = {
+        "scenario_player": {*_fields(PlayerConfig), *shared},
+        "lidar_resim": {*_fields(ResimNodeConfig), "resim", *shared},
+        "perturber": {*_fields(PerturberConfig), *shared},
+        "scorer": {"objective", "metrics", "drivable", *shared},
+        "search": {*_fields(SearchNodeConfig), *_fields(DriverConfig), *ALGORITHM_NAMES, *shared},
+    }
+    for node, values in options.parameter_overrides.items():
+        if node not in known:
+            raise ScenarioError(f"parameter for node {node!r}: not a node of the graph (one of {', '.join(known)})")
+        unknown = sorted(set(values) - known[node])
+        if unknown:
+            raise ScenarioError(f"/{node}: unknown parameter(s) {unknown} (known: {sorted(known[node])})")
 
     section(parameters["scenario_player"], "", PlayerConfig, "/scenario_player")
     section(parameters["lidar_resim"], "", ResimNodeConfig, "/lidar_resim")

@@ -9,6 +9,7 @@ settings it needs itself (window, re-simulation, drivable area) without a second
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -64,8 +65,6 @@ def section(parameters: Mapping[str, Any], key: str, config_type: type[ConfigT],
     if not isinstance(values, Mapping):
         raise ParamsError(f"{context} {key}: expected a mapping")
     if not key:
-        import dataclasses
-
         known = {f.name for f in dataclasses.fields(config_type)}  # type: ignore[arg-type]
         values = {k: v for k, v in values.items() if k in known}
     return config_from_mapping(config_type, values, f"{context} {key}".strip())

@@ -103,6 +103,10 @@ def attack_summary(records: Sequence[QueryRecord]) -> dict[str, Any]:
         "recorded_query_id": final.query_id if final is not None else None,
         "reproductions": [item.as_json() for item in checked],
         "flaky": [item.query_id for item in checked if not item.reproduced],
+        # the same bytes in, different plans out: the stack itself is not deterministic
+        "stack_nondeterministic": any(
+            item.as_json()["inputs_identical"] and not item.as_json()["plans_identical"] for item in checked
+        ),
         "queries": [query_entry(record) for record in records],
         "failed_queries": sum(1 for r in searched if not r.ok),
     }

@@ -8,6 +8,7 @@ logs once, those of another run, so a stray graph on the same ROS domain changes
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +31,9 @@ from advsim_ros.ros.params import declare_config
 from advsim_ros.ros.qos import profile
 
 RUN_ID_PARAMETER = "run_id"  # every node of one attack gets the same value (advsim attack draws it)
+# Subscriptions keep this many messages whatever the writers keep: a latched topic's single slot
+# would otherwise be overwritten by another writer's message (a stray graph) before it is read.
+SUBSCRIPTION_DEPTH = 100
 
 
 class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
@@ -82,11 +86,13 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
                 return
             callback(decoded)
 
+        offered = qos or topic.offered
+        depth = max(offered.depth, SUBSCRIPTION_DEPTH)
         self.create_subscription(
             message_class(topic.msgtype),
             topic.name,
             on_message,
-            profile(qos or topic.offered),
+            profile(dataclasses.replace(offered, depth=depth)),
             raw=True,
             callback_group=group,
         )

@@ -1,0 +1,271 @@
+"""Faults, for real: kill -9 of `advsim attack`, a stray graph on the same ROS domain, a non-deterministic
+stack, a stack that never connects, SIGINT and SIGTERM, and bad input that must start nothing.
+
+Every test runs `advsim attack` as a user would (a process of its own) on a 6 s KITTI 0000 window
+with the test stack (the example stack, processes/simple_stack.py), and kills, interrupts or
+disturbs it while it runs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from advsim_ros.ros.launcher import graph_environment, wait_for
+
+INTRUDER = Path(__file__).resolve().parent / "processes" / "intruder.py"
+QUERIES = 6  # searched queries; with the original and two re-runs of the best: 9 in all
+FAST = ("--param", "perturber.num_candidates=20000")
+
+
+def _attack_argv(bag: Path, out: Path, stack: str, *extra: str) -> list[str]:
+    return [
+        sys.executable, "-m", "advsim_ros.cli", "attack", str(bag), "--stack", stack, "--algo", "random",
+        "--queries", str(QUERIES), "--window-start", "0", "-o", str(out), *FAST, *extra,
+    ]  # fmt: skip
+
+
+def _journaled(out: Path) -> list[int]:
+    """Query ids of the complete lines of the journal."""
+    path = out / "queries.jsonl"
+    if not path.exists():
+        return []
+    ids = []
+    for line in path.read_text().splitlines()[1:]:
+        try:
+            record = json.loads(line)
+        except ValueError:
+            break
+        if "query_id" in record:
+            ids.append(int(record["query_id"]))
+    return ids
+
+
+def _started(log: Path, offset: int) -> set[int]:
+    """Queries the scenario player began to replay, in the part of its log after ``offset``."""
+    text = log.read_bytes()[offset:].decode(errors="replace") if log.exists() else ""
+    return {int(match) for match in re.findall(r"query (\d+): replay starts", text)}
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (the graph's nodes, the stack, the reaper)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    """Running, not a zombie (the reaper of this container may not collect orphans)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _measured(summary: dict[str, Any]) -> list[tuple[Any, ...]]:
+    keys = ("status", "adversarial_loss", "input_digest", "plan_digest")
+    return [(q["query_id"], q["algorithm"], q["delta"], *(q["score"][k] for k in keys)) for q in summary["queries"]]
+
+
+def _timeless(entry: dict[str, Any]) -> dict[str, Any]:
+    """A summary entry without its wall-clock times (the only thing a resumed run may change)."""
+    score = {key: value for key, value in entry["score"].items() if key != "wall_time"}
+    return {**entry, "score": score}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(kitti_window_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[str, dict[str, Any]]:
+    """The attack run once without disturbance: what every disturbed run must reproduce."""
+    base = tmp_path_factory.mktemp("uninterrupted")
+    stack = f"{sys.executable} {Path(__file__).resolve().parent / 'processes' / 'simple_stack.py'}"
+    stack += f" --ros-args -p marker_dir:={base}"
+    result = subprocess.run(_attack_argv(kitti_window_bag, base / "out", stack), capture_output=True, text=True,
+                            timeout=900, check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    return stack, json.loads((base / "out" / "summary.json").read_text())
+
+
+def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path) -> None:
+    """Run the attack, kill -9 it when ``point()`` holds, check that nothing of its graph is left within 5 s."""
+    player_log = out / "run" / "logs" / "scenario_player.log"
+    journaled_before = set(_journaled(out))
+    offset = player_log.stat().st_size if player_log.exists() else 0
+    orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        assert wait_for(lambda: point() or orchestrator.poll() is not None, timeout=600)
+        assert orchestrator.poll() is None, "the attack ended before the kill point"
+        graph = _children(orchestrator.pid)
+        assert graph, "no process of the graph found"
+    finally:
+        orchestrator.send_signal(signal.SIGKILL)
+        orchestrator.wait()
+    assert wait_for(lambda: not any(_alive(pid) for pid in graph), timeout=5.0), [p for p in graph if _alive(p)]
+    # a query the journal held before this run was never replayed again
+    assert _started(player_log, offset).isdisjoint(journaled_before)
+    ids = _journaled(out)
+    assert len(ids) == len(set(ids))
+
+
+@pytest.mark.slow
+def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_resumes_without_recomputing(
+    kitti_window_bag: Path, tmp_path: Path, uninterrupted: tuple[str, dict[str, Any]]
+) -> None:
+    stack, reference = uninterrupted
+    out = tmp_path / "killed"
+    argv = _attack_argv(kitti_window_bag, out, stack)
+    player_log = out / "run" / "logs" / "scenario_player.log"
+    kill_points: list[Callable[[], bool]] = [
+        lambda: (out / "run" / "graph.json").exists(),  # while the graph starts
+        lambda: len(_journaled(out)) >= 3,  # in the middle of the search
+        lambda: len(_journaled(out)) >= QUERIES + 2,  # during the re-runs of the best
+    ]
+    for point in kill_points:
+        _kill_9_at(argv, point, out)
+    journaled_before = set(_journaled(out))
+    offset = player_log.stat().st_size
+    final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
+    assert final.returncode == 0, final.stderr
+    assert _started(player_log, offset).isdisjoint(journaled_before)
+    assert _journaled(out) == list(range(QUERIES + 3))  # every query exactly once
+    summary = json.loads((out / "summary.json").read_text())
+    assert _measured(summary) == _measured(reference)  # as if it had never been interrupted
+    assert _timeless(summary["best"]) == _timeless(reference["best"])
+
+
+@pytest.mark.slow
+def test_a_stray_graph_on_the_same_ros_domain_changes_nothing_in_the_attack(
+    kitti_window_bag: Path, tmp_path: Path, uninterrupted: tuple[str, dict[str, Any]]
+) -> None:
+    stack, reference = uninterrupted
+    out = tmp_path / "crosstalk"
+    orchestrator = subprocess.Popen(_attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, text=True)  # fmt: skip
+    graph_file = out / "run" / "graph.json"
+    intruder = None
+    try:
+        assert wait_for(lambda: graph_file.exists() or orchestrator.poll() is not None, timeout=600)
+        domain = json.loads(graph_file.read_text())["ros_domain_id"]
+        intruder = subprocess.Popen([sys.executable, str(INTRUDER)], env=graph_environment(domain),
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        _, errors = orchestrator.communicate(timeout=600)
+    finally:
+        orchestrator.kill()  # only if the test failed: it has exited otherwise
+        if intruder is not None:
+            intruder.send_signal(signal.SIGINT)
+            intruder.wait(timeout=30)
+    assert orchestrator.returncode == 0, errors
+    logs = "".join(path.read_text() for path in (out / "run" / "logs").glob("*.log"))
+    assert "ignoring /advsim/perturbation messages of run 0x67932" in logs  # the stray run id, seen and ignored
+    assert _measured(json.loads((out / "summary.json").read_text())) == _measured(reference)
+
+
+@pytest.mark.slow
+def test_a_stack_that_is_not_deterministic_is_reported_as_such_and_replay_check_counts_the_runs_that_reproduce(
+    kitti_window_bag: Path, tmp_path: Path, simple_stack: Callable[..., str], advsim: Callable[..., Any]
+) -> None:
+    out = tmp_path / "flaky"
+    result = subprocess.run(
+        _attack_argv(kitti_window_bag, out, simple_stack(flaky_probability=0.3)), capture_output=True, text=True,
+        timeout=900, check=False,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stack_nondeterministic"] is True  # 30 answers to identical inputs were not all the same
+    (reproduction,) = summary["reproductions"]
+    assert reproduction["inputs_identical"] is True  # the framework sent the same bytes every time
+    values = reproduction["adversarial_losses"]
+    assert reproduction["spread"] == max(values) - min(values)
+    assert reproduction["reproduced"] == (reproduction["spread"] == 0.0)
+    assert (reproduction["query_id"] in summary["flaky"]) == (not reproduction["reproduced"])
+    replay = advsim("replay", str(out / "adversarial"), "--stack", simple_stack(flaky_probability=1.0), "--check",
+                    "--runs", "3", "-o", str(tmp_path / "replay"))  # fmt: skip
+    assert replay.returncode == 3, replay.stdout + replay.stderr
+    assert "reproduced 0 of 3 runs" in replay.stdout
+
+
+@pytest.mark.slow
+def test_a_stack_that_never_hears_the_lidar_ends_the_attack_with_what_it_listens_to(
+    kitti_window_bag: Path, tmp_path: Path, simple_stack: Callable[..., str]
+) -> None:
+    stack = simple_stack() + " -r /sensor/lidar/points:=/points_raw"  # the user's own topic name, not remapped
+    result = subprocess.run(
+        _attack_argv(kitti_window_bag, tmp_path / "deaf", stack, "--connect-timeout", "20"),
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert result.returncode == 1
+    message = result.stderr.strip().splitlines()[-1]
+    assert "the stack did not connect within 20 s: no subscription to the LiDAR topic /sensor/lidar/points" in message
+    assert "/points_raw" in message  # what it subscribes to instead
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("sent", "code", "word"), [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
+)
+def test_sigint_and_sigterm_end_the_attack_with_one_line_their_exit_code_and_nothing_left(
+    kitti_window_bag: Path, tmp_path: Path, simple_stack: Callable[..., str], sent: int, code: int, word: str
+) -> None:
+    out = tmp_path / "stopped"
+    orchestrator = subprocess.Popen(_attack_argv(kitti_window_bag, out, simple_stack()), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert wait_for(lambda: len(_journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
+        graph = _children(orchestrator.pid)
+        orchestrator.send_signal(sent)
+        _, errors = orchestrator.communicate(timeout=60)
+    finally:
+        orchestrator.kill()
+    assert orchestrator.returncode == code, errors
+    assert "Traceback" not in errors
+    assert errors.strip().splitlines()[-1].startswith(f"advsim attack: {word}")
+    assert not [pid for pid in graph if _alive(pid)]
+    assert len(_journaled(out)) >= 2  # what finished is kept
+
+
+@pytest.mark.parametrize(
+    ("case", "expected"),
+    [
+        ("missing_stack", "--stack: command 'no-such-stack-command' not found on PATH"),
+        ("window", "window frames 100..159 need 160 frames, the log has 60"),
+        ("not_a_bag", "not a rosbag2 folder (no metadata.yaml)"),
+        ("remap", "remapping of /velodyne_points: not a topic of the contract"),
+        ("parameter", "/perturber: unknown parameter(s) ['num_candidate']"),
+    ],
+)
+def test_bad_input_gets_one_line_naming_the_problem_and_starts_nothing(
+    kitti_window_bag: Path, tmp_path: Path, advsim: Callable[..., Any], case: str, expected: str
+) -> None:
+    out = tmp_path / "out"
+    remap_file = tmp_path / "remap.yaml"
+    remap_file.write_text("/velodyne_points: /points_raw\n")
+    (tmp_path / "empty").mkdir()
+    arguments = {
+        "missing_stack": [str(kitti_window_bag), "--stack", "no-such-stack-command"],
+        "window": [str(kitti_window_bag), "--window-start", "100"],
+        "not_a_bag": [str(tmp_path / "empty")],
+        "remap": [str(kitti_window_bag), "--remap-file", str(remap_file)],
+        "parameter": [str(kitti_window_bag), "--param", "perturber.num_candidate=10"],
+    }[case]
+    result = advsim("attack", *arguments, "-o", str(out), timeout=120)
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert expected in lines[0]
+    assert not out.exists()  # nothing started, nothing written
