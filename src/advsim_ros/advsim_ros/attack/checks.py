@@ -93,8 +93,7 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     """Build every node's configs the way the node will, so bad parameters fail here, not in a process."""
     from advsim_ros.core.feasibility import PerturberConfig
     from advsim_ros.nodes.lidar_resim import ResimNodeConfig
-    from advsim_ros.nodes.scenario_player import PlayerConfig
-    from advsim_ros.nodes.search import SearchNodeConfig
+    from advsim_ros.ros.lockstep import PlayerConfig
 
     shared = {"window", "bag", "run_id"}
     known = {
@@ -102,7 +101,7 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
         "lidar_resim": {*_fields(ResimNodeConfig), "resim", *shared},
         "perturber": {*_fields(PerturberConfig), *shared},
         "scorer": {"objective", "metrics", "drivable", *shared},
-        "search": {*_fields(SearchNodeConfig), *_fields(DriverConfig), *ALGORITHM_NAMES, *shared},
+        "search": {*_fields(DriverConfig), *ALGORITHM_NAMES, *shared},
     }
     for node, values in options.parameter_overrides.items():
         if node not in known:
@@ -119,7 +118,6 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     scorer = {k: v for k, v in parameters["scorer"].items() if k in ("objective", "metrics")}
     scorer_settings_from_params(scorer, "/scorer")
     search = parameters["search"]
-    section(search, "", SearchNodeConfig, "/search")
     section(search, "", DriverConfig, "/search")
     if not options.replay_only:
         config_from_params(options.algorithm, search.get(options.algorithm, {}), f"/search {options.algorithm}")

@@ -21,7 +21,8 @@ from advsim_ros.core.lidar.query import query_sweep
 from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.types import ActorTrack, ScenarioError, Sweep
 from advsim_ros.io.cache import cache_root
-from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.nodes.scenario_node import ScenarioNode
+from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config
 
 
@@ -34,7 +35,7 @@ class ResimNodeConfig:
     build_model: bool = True  # build the model at start-up (off for `advsim replay`: nothing moves there)
 
 
-class LidarResim(GraphNode):
+class LidarResim(ScenarioNode):
     def __init__(self) -> None:
         super().__init__("lidar_resim")
         self.config = declare_config(self, ResimNodeConfig)

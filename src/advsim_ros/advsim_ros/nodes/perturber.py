@@ -25,11 +25,12 @@ from advsim_ros.contract.protocol import (
 from advsim_ros.contract.tracks import TrackRecord, track_array_msg
 from advsim_ros.core.feasibility import PerturberConfig, Window, perturbation_names, select_actors
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.nodes.scenario_node import ScenarioNode
+from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config
 
 
-class Perturber(GraphNode):
+class Perturber(ScenarioNode):
     def __init__(self) -> None:
         super().__init__("perturber")
         self.config = declare_config(self, PerturberConfig)

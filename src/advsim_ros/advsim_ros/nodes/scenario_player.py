@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import queue
 import threading
-from dataclasses import dataclass
 
 import rclpy
 
@@ -19,34 +18,17 @@ from advsim_ros.contract import codec, topics
 from advsim_ros.contract.protocol import episode_msg, frame_request_msg
 from advsim_ros.contract.scenario import road_map_msg, scenario_info_msg
 from advsim_ros.contract.spatial import odometry_msgs, tf_message
-from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag.write import sensor_frame_of
+from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros import lockstep
-from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config
 
 
-@dataclass(frozen=True)
-class PlayerConfig:
-    """/scenario_player parameters (params/scenario_player.yaml)."""
-
-    plan_timeout: float = 10.0  # longest wait for the stack's plan of one frame [s, wall clock]
-    sweep_timeout: float = 30.0  # longest wait for the re-simulated sweep of one frame [s, wall clock]
-    ready_timeout: float = 600.0  # longest wait, per query, for the stack and lidar_resim to be connected [s]
-    wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
-
-    def __post_init__(self) -> None:
-        for name in ("plan_timeout", "sweep_timeout", "ready_timeout"):
-            if not getattr(self, name) > 0.0:
-                raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
-
-
-class ScenarioPlayer(GraphNode):
+class ScenarioPlayer(ScenarioNode):
     def __init__(self) -> None:
         super().__init__("scenario_player")
-        config = declare_config(self, PlayerConfig)
-        self.lockstep = lockstep.LockStepConfig(config.plan_timeout, config.sweep_timeout, config.wait_for_every_plan)
-        self.ready_timeout = config.ready_timeout
+        self.config = declare_config(self, lockstep.PlayerConfig)
         scenario, self.clock = self.load_scenario(load_sweeps=False)
         bag = self.bag_config
         frames = self.window.frame_indices(scenario.num_frames)
@@ -106,13 +88,13 @@ class ScenarioPlayer(GraphNode):
             done.add(query_id)
             self.get_logger().info(f"query {query_id}: replay starts")
             try:
-                lockstep.wait_until_connected(self, self.latched, self.ready_timeout, self._stop)
+                lockstep.wait_until_connected(self, self.latched, self.config.ready_timeout, self._stop)
                 stack_outputs = (
                     lockstep.stack_publishes(self, topics.DETECTIONS),
                     lockstep.stack_publishes(self, topics.PREDICTIONS),
                 )
                 lockstep.replay_query(
-                    query_id, self.history, self.clock, self.lockstep, self.outputs, self.inputs, self.liveness,
+                    query_id, self.history, self.clock, self.config, self.outputs, self.inputs, self.liveness,
                     stack_outputs, self._stop,
                 )  # fmt: skip
             except Exception:

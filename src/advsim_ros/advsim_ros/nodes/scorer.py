@@ -21,12 +21,13 @@ from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.objective import ObjectiveConfig, scorer_settings_from_params
 from advsim_ros.core.types import ActorTrack
-from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.nodes.scenario_node import ScenarioNode
+from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config, declare_parameters
 from advsim_ros.ros.scoring import score_episode
 
 
-class Scorer(GraphNode):
+class Scorer(ScenarioNode):
     def __init__(self) -> None:
         super().__init__("scorer")
         objective = declare_parameters(self, ObjectiveConfig, "objective.")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,27 +27,14 @@ from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.params import declare_config
 
 
-@dataclass(frozen=True)
-class SearchNodeConfig:
-    """/search parameters besides the algorithm's own (params/search.yaml)."""
-
-    algorithm: str = "bo"  # one of bo, ga, rs, nes, bandit, random
-    seed: int = 0  # seeds the algorithm's generator
-    score_timeout: float = 900.0  # longest wait for one query's score [s, wall clock]
-    journal_file: str = ""  # the attack's journal: finished queries to replay instead of recompute ("" = none)
-
-    def __post_init__(self) -> None:
-        if self.algorithm not in ALGORITHM_NAMES:
-            raise ScenarioError(f"/search algorithm: {self.algorithm!r} is not one of {', '.join(ALGORITHM_NAMES)}")
-        if not self.score_timeout > 0.0:
-            raise ScenarioError(f"/search score_timeout: must be positive, got {self.score_timeout}")
-
-
 class SearchNode(GraphNode):
     def __init__(self) -> None:
         super().__init__("search")
-        self.config = declare_config(self, SearchNodeConfig)
-        self.driver_config = declare_config(self, DriverConfig)
+        self.config = declare_config(self, DriverConfig)
+        if self.config.algorithm not in ALGORITHM_NAMES:
+            raise ScenarioError(
+                f"/search algorithm: {self.config.algorithm!r} is not one of {', '.join(ALGORITHM_NAMES)}"
+            )
         self.algorithm_config = declare_config(self, config_type(self.config.algorithm), f"{self.config.algorithm}.")
         self.publish_perturbation = self.publisher(topics.PERTURBATION)
         self._condition = threading.Condition()
@@ -106,7 +92,7 @@ class SearchNode(GraphNode):
             f"actors {list(selection.actor_ids)}, {len(recorded)} finished queries in the journal"
         )
         drive_search(
-            algorithm, self._evaluate, selection.scenario_id, selection.actor_ids, self.driver_config, recorded,
+            algorithm, self._evaluate, selection.scenario_id, selection.actor_ids, self.config, recorded,
             self._stop.is_set,
         )  # fmt: skip
         if not self._stop.is_set():

@@ -1,4 +1,4 @@
-"""What every node of the attack graph shares: contract topics as raw CDR, the run id, the window, the main loop.
+"""What every node of the attack graph shares: contract topics as raw CDR, the run id, the main loop.
 
 Messages travel as CDR bytes built and parsed by ``advsim_ros.contract`` (rclpy's
 ``publish(bytes)`` and ``raw=True`` subscriptions), so what a node publishes is byte for byte
@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -23,11 +22,8 @@ from rclpy.parameter import Parameter
 from advsim_ros.contract import codec
 from advsim_ros.contract.qos import QosSpec
 from advsim_ros.contract.topics import TopicSpec
-from advsim_ros.core.episode import EpisodeClock, WindowConfig
-from advsim_ros.core.types import Scenario, ScenarioError
-from advsim_ros.io.bag import BagConfig, read_scenario_bag
+from advsim_ros.core.types import ScenarioError
 from advsim_ros.ros.messages import message_class
-from advsim_ros.ros.params import declare_config
 from advsim_ros.ros.qos import profile
 
 RUN_ID_PARAMETER = "run_id"  # every node of one attack gets the same value (advsim attack draws it)
@@ -42,8 +38,6 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
     def __init__(self, name: str, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__(name, parameter_overrides=parameter_overrides)
         self.run_id = int(self.declare_parameter(RUN_ID_PARAMETER, 0).value)
-        self.window = declare_config(self, WindowConfig, "window.")
-        self.bag_config = declare_config(self, BagConfig, "bag.")
         self._foreign_runs: set[tuple[str, int]] = set()
 
     def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Callable[[Any], None]:
@@ -104,13 +98,6 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
                 f"ignoring {topic} messages of run {run_id:#x} (this attack is run {self.run_id:#x}): "
                 "another graph shares the ROS domain"
             )
-
-    def load_scenario(self, *, load_sweeps: bool) -> tuple[Scenario, EpisodeClock]:
-        """The window's scenario from the bag, and the episode clock all nodes share."""
-        if not self.window.scenario_bag:
-            raise ScenarioError(f"/{self.get_name()}: parameter window.scenario_bag is not set")
-        scenario = read_scenario_bag(Path(self.window.scenario_bag), config=self.bag_config, load_sweeps=load_sweeps)
-        return scenario, self.window.clock(scenario.frame_stamps_ns.tolist())
 
 
 def run_node(factory: Callable[[], Node], *, threads: int = 1) -> None:

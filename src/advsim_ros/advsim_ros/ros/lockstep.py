@@ -23,7 +23,7 @@ from advsim_ros.contract.digests import InputDigest, PlanDigest
 from advsim_ros.contract.enums import Outcome, Phase
 from advsim_ros.contract.protocol import EpisodeRecord, FrameRequestRecord
 from advsim_ros.core.episode import EpisodeClock
-from advsim_ros.core.types import FloatArray
+from advsim_ros.core.types import FloatArray, ScenarioError
 
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
@@ -127,10 +127,18 @@ class HistoryFrame:
 
 
 @dataclass(frozen=True)
-class LockStepConfig:
-    plan_timeout: float  # longest wait for the stack's plan of one frame [s, wall clock]
-    sweep_timeout: float  # longest wait for the re-simulated sweep of one frame [s, wall clock]
-    wait_for_every_plan: bool  # wait for a plan at every frame, else only at the decision frame
+class PlayerConfig:
+    """/scenario_player parameters (params/scenario_player.yaml)."""
+
+    plan_timeout: float = 10.0  # longest wait for the stack's plan of one frame [s, wall clock]
+    sweep_timeout: float = 30.0  # longest wait for the re-simulated sweep of one frame [s, wall clock]
+    ready_timeout: float = 600.0  # longest wait, per query, for the stack and lidar_resim to be connected [s]
+    wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
+
+    def __post_init__(self) -> None:
+        for name in ("plan_timeout", "sweep_timeout", "ready_timeout"):
+            if not getattr(self, name) > 0.0:
+                raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
 
 
 @dataclass
@@ -159,7 +167,7 @@ def replay_query(
     query_id: int,
     frames: Iterable[HistoryFrame],
     clock: EpisodeClock,
-    config: LockStepConfig,
+    config: PlayerConfig,
     outputs: Outputs,
     inputs: Inputs,
     liveness: StackLiveness,

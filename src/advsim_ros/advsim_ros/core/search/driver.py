@@ -29,6 +29,12 @@ Evaluate = Callable[[Perturbation], float]  # L_adv of a query, NaN when it fail
 
 @dataclass(frozen=True)
 class DriverConfig:
+    """/search parameters besides the algorithm's own (params/search.yaml)."""
+
+    algorithm: str = "bo"  # one of core.search.registry.ALGORITHM_NAMES
+    seed: int = 0  # seeds the algorithm's generator
+    score_timeout: float = 900.0  # longest wait for one query's score [s, wall clock]
+    journal_file: str = ""  # the attack's journal: finished queries to replay instead of recompute ("" = none)
     score_original: bool = True  # evaluate the unperturbed scenario first, as query 0
     reruns: int = 2  # evaluations of each best query after the search (reproducibility check)
     rerun_top: int = 1  # how many of the best queries are re-run
@@ -36,6 +42,8 @@ class DriverConfig:
     def __post_init__(self) -> None:
         if self.reruns < 0 or self.rerun_top < 0:
             raise ScenarioError(f"search reruns and rerun_top must be >= 0, got {self.reruns}, {self.rerun_top}")
+        if not self.score_timeout > 0.0:
+            raise ScenarioError(f"search score_timeout: must be positive, got {self.score_timeout}")
 
 
 class _Recorded:

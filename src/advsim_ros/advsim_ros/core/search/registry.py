@@ -91,7 +91,7 @@ def load_search_settings(path: Path, algorithm: str | None = None) -> SearchSett
     seed = parameters.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ParamsError(f"{context}.seed: expected a non-negative integer, got {seed!r}")
-    node_keys = {"algorithm", "seed", "score_timeout", "journal_file", *(f.name for f in fields(DriverConfig))}
+    node_keys = {f.name for f in fields(DriverConfig)}
     unknown = sorted(set(parameters) - {*node_keys, *ALGORITHM_NAMES})
     if unknown:
         raise ParamsError(f"{context}: unknown parameter(s) {unknown}")
