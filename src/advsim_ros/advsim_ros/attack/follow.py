@@ -65,6 +65,7 @@ def follow(
         finished = monitor.take_finished()
         for query in finished:
             journal.append(query_record(query, offset))
+            monitor.node.trace("journaled", query.perturbation.query_id)
         if finished:
             last_change = time.monotonic()
             if progress is not None:

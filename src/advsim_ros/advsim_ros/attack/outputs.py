@@ -166,6 +166,7 @@ def _write_adversarial_bag(
         road_map=cropped.road_map,
         ego_size=cropped.ego_size,
         ego_forward_offset=cropped.ego_forward_offset,
+        sensor_frame=cropped.sensor_frame,
         drivable_area=drivable,
     )
     decision = int(scenario.frame_stamps_ns[frames.start + window.decision_index])

@@ -38,6 +38,7 @@ from advsim_ros.ros.launcher import (
     python_module_command,
     reserve_domain_id,
 )
+from advsim_ros.ros.trace import Trace
 
 JOURNAL_NAME = "queries.jsonl"
 _NODE_MODULES = {name: f"advsim_ros.nodes.{name}" for name in GRAPH_NODES}
@@ -128,6 +129,8 @@ def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None
     out_dir.mkdir(parents=True, exist_ok=True)
     journal = Journal.open(journal_path, fingerprint)
     started = time.monotonic()
+    trace = Trace("advsim_attack")
+    trace("checked")
     crashes: list[dict[str, Any]] = []
     domain_id = None
     if not journal.finished:
@@ -136,7 +139,9 @@ def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None
         domain_id, crashes = _run_graph(options, checked, overrides_file, journal, progress)
     from advsim_ros.attack.outputs import write_outputs
 
+    trace("graph_done")
     summary = write_outputs(options, checked, journal, time.monotonic() - started, crashes, domain_id)
+    trace("outputs_written")
     return AttackResult(out_dir, summary)
 
 

@@ -171,6 +171,6 @@ def scenario_info_from_msg(info: Any, what: str) -> ScenarioInfoRecord:
         sensor_frame=str(info.sensor_frame),
         ego_T_sensor=pose_matrix(info.ego_to_sensor.translation, info.ego_to_sensor.rotation, what),
         ego_size=np.array([info.ego_length, info.ego_width, info.ego_height], dtype=np.float64),
-        ego_forward_offset=float(info.ego_forward_offset),
+        ego_forward_offset=float(getattr(info, "ego_forward_offset", 1.0)),  # bags written before the field: 1 m
         sensor=sensor,
     )

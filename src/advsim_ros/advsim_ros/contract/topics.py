@@ -42,6 +42,7 @@ ACTOR_SELECTION = TopicSpec("/advsim/actor_selection", names.ACTOR_SELECTION, qo
 PERTURBATION = TopicSpec("/advsim/perturbation", names.PERTURBATION, qos.LATCHED)
 PERTURBED_TRACKS = TopicSpec("/advsim/perturbed_tracks", names.ACTOR_TRACK_ARRAY, qos.LATCHED)
 FRAME_REQUEST = TopicSpec("/advsim/frame_request", names.FRAME_REQUEST, qos.STREAM)
+RENDERED = TopicSpec("/advsim/rendered_points", names.POINTCLOUD2, qos.STREAM)  # lidar_resim's answers, to the player
 EPISODE = TopicSpec("/advsim/episode", names.EPISODE, qos.HISTORY)
 SCORE = TopicSpec("/advsim/score", names.QUERY_SCORE, qos.HISTORY)
 
@@ -66,6 +67,7 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     PERTURBATION,
     PERTURBED_TRACKS,
     FRAME_REQUEST,
+    RENDERED,
     EPISODE,
     SCORE,
 )

@@ -348,5 +348,6 @@ def crop_frames(scenario: Scenario, first_frame: int, last_frame: int) -> Scenar
         road_map=scenario.road_map,
         ego_size=scenario.ego_size,
         ego_forward_offset=scenario.ego_forward_offset,
+        sensor_frame=scenario.sensor_frame,
         drivable_area=scenario.drivable_area,
     )

@@ -296,6 +296,7 @@ class Scenario:
     road_map: RoadMap | None = None  # vector map when the log has one
     ego_size: FloatArray = field(default_factory=lambda: np.array([4.5, 1.9, 1.7]))  # (3,) ego box l, w, h [m]
     ego_forward_offset: float = 1.0  # centre of the ego box ahead of the ego frame's origin [m]
+    sensor_frame: str = ""  # name of the LiDAR frame ("" = the sweeps' frame_id, or unknown)
     drivable_area: DrivableArea | None = None  # a stored drivable raster (e.g. the estimate an attack used)
 
     def __post_init__(self) -> None:
@@ -330,6 +331,16 @@ class Scenario:
         ego_size = _as_float_array(f"Scenario {self.scenario_id} ego_size", self.ego_size, (3,))
         _require(bool(np.all(ego_size > 0)), f"Scenario {self.scenario_id}: ego_size must be positive")
         object.__setattr__(self, "ego_size", ego_size)
+        sweep_frames = {sweep.frame_id for sweep in self.sweeps}
+        _require(
+            len(sweep_frames) <= 1, f"Scenario {self.scenario_id}: sweeps in several frames {sorted(sweep_frames)}"
+        )
+        if not self.sensor_frame and sweep_frames:
+            object.__setattr__(self, "sensor_frame", next(iter(sweep_frames)))
+        _require(
+            sweep_frames <= {self.sensor_frame},
+            f"Scenario {self.scenario_id}: sweeps in frame {sorted(sweep_frames)}, sensor_frame {self.sensor_frame!r}",
+        )
         _require(
             bool(np.isfinite(self.ego_forward_offset)),
             f"Scenario {self.scenario_id}: ego_forward_offset must be finite",

@@ -1,9 +1,11 @@
-"""lidar_resim: answers each FrameRequest with the sweep of the query's perturbed world on the LiDAR topic.
+"""lidar_resim: answers each FrameRequest with the sweep of the query's perturbed world.
 
 It loads (or builds and caches) the log's re-simulation model once, keeps each query's perturbed
 tracks, and renders a requested frame (core.lidar.query) as soon as both the request and the
 query's tracks are there, in whatever order they arrive. The sweep keeps the logged sweep's
-frame and fields and carries the request's sim stamp.
+frame and fields, carries the request's sim stamp and goes to the player (/advsim/rendered_points),
+which hands it to the stack when the stack is ready for it: frames are rendered ahead while the
+stack plans.
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ class LidarResim(ScenarioNode):
             cache = Path(self.config.cache_dir) if self.config.cache_dir else cache_root() / "resim"
             self.get_logger().info(f"loading or building the re-simulation model (cache {cache})")
             self.model = ResimModel.build(self.scenario, cache_dir=cache, config=resim_config)
-        self.publish_sweep = self.publisher(topics.LIDAR)
+        self.publish_sweep = self.publisher(topics.RENDERED)
         self.tracks: dict[int, tuple[ActorTrack, ...]] = {}
         self.waiting: list[FrameRequestRecord] = []
         self.subscribe(topics.PERTURBED_TRACKS, self._on_tracks)
@@ -65,7 +67,9 @@ class LidarResim(ScenarioNode):
         self._answer()
 
     def _on_request(self, message: Any) -> None:
-        self.waiting.append(frame_request_from_msg(message))
+        request = frame_request_from_msg(message)
+        self.trace("request_received", request.query_id, request.frame_index)
+        self.waiting.append(request)
         self._answer()
 
     def _answer(self) -> None:
@@ -77,6 +81,7 @@ class LidarResim(ScenarioNode):
             points = query_sweep(self.model, self.scenario, logged, request.world_T_ego, moved, self.config.seed)
             out = Sweep(request.sim_stamp_ns, logged.frame_id, points, logged.sensor_pose)
             self.publish_sweep(cloud_msg(out))
+            self.trace("sweep_sent", request.query_id, request.frame_index)
 
 
 def main() -> None:

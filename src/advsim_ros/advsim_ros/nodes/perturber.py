@@ -66,6 +66,7 @@ class Perturber(ScenarioNode):
     def on_perturbation(self, message: Any) -> None:
         perturbation = perturbation_from_msg(message)
         query_id = perturbation.query_id
+        self.trace("perturbation_received", query_id)
         try:
             moved = self.selection.project_perturbation(perturbation)
         except ScenarioError as error:
@@ -74,6 +75,7 @@ class Perturber(ScenarioNode):
             return
         tracks = [TrackRecord.from_perturbed(trajectory) for trajectory in moved]
         self.publish_tracks(track_array_msg(tracks, self.stamp, self.frame_id, query_id=query_id, run_id=self.run_id))
+        self.trace("tracks_sent", query_id)
 
 
 def main() -> None:

@@ -53,14 +53,16 @@ class ScenarioPlayer(ScenarioNode):
             clock=self.publisher(topics.CLOCK),
             tf=self.publisher(topics.TF),
             odometry=self.publisher(topics.ODOM),
+            lidar=self.publisher(topics.LIDAR),
             frame_request=lambda r: publish_request(frame_request_msg(r, bag.world_frame, self.run_id)),
             episode=lambda e, d, p: publish_episode(episode_msg(e, self.run_id, d, p)),
             tf_message=lambda stamp, pose: tf_message(stamp, bag.world_frame, bag.ego_frame, pose),
+            trace=self.trace,
         )
         arrivals = [lockstep.StampedArrivals() for _ in range(4)]
         self.inputs = lockstep.Inputs(*arrivals)
         for topic, stream in zip(
-            (topics.LIDAR, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS), arrivals, strict=True
+            (topics.RENDERED, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS), arrivals, strict=True
         ):
             self.subscribe(topic, stream.add, raw=True)
         self.liveness = lockstep.StackLiveness(self)

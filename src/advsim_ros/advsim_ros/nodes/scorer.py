@@ -60,6 +60,7 @@ class Scorer(ScenarioNode):
         if episode.phase == Phase.START:
             self.started[episode.query_id] = time.monotonic()
         elif episode.phase == Phase.DONE:
+            self.trace("done_received", episode.query_id)
             self.done[episode.query_id] = episode
             self._score_ready()
 
@@ -72,6 +73,7 @@ class Scorer(ScenarioNode):
                 episode, moved, self.scenario, self.clock, self.decision_frame, self.settings, self.drivable, wall_time
             )
             self.publish_score(score_msg(score, self.run_id))
+            self.trace("score_sent", query_id)
 
 
 def main() -> None:

@@ -53,6 +53,7 @@ class SearchNode(GraphNode):
 
     def _on_score(self, message: Any) -> None:
         score = score_from_msg(message)
+        self.trace("score_received", score.query_id)
         with self._condition:
             self._scores[score.query_id] = score.adversarial_loss if score.ok else math.nan
             self._condition.notify_all()
@@ -72,6 +73,7 @@ class SearchNode(GraphNode):
         """Publish a query and wait for its score: L_adv, or NaN when the query failed or timed out."""
         self.publish_perturbation(perturbation_msg(perturbation, self.run_id))
         query_id = perturbation.query_id
+        self.trace("perturbation_sent", query_id)
         if not self._wait(lambda: query_id in self._scores, self.config.score_timeout):
             if not self._stop.is_set():
                 self.get_logger().error(f"query {query_id}: no score within {self.config.score_timeout} s")

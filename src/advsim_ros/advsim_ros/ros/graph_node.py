@@ -25,6 +25,7 @@ from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.ros.messages import message_class
 from advsim_ros.ros.qos import profile
+from advsim_ros.ros.trace import Trace
 
 RUN_ID_PARAMETER = "run_id"  # every node of one attack gets the same value (advsim attack draws it)
 # Subscriptions keep this many messages whatever the writers keep: a latched topic's single slot
@@ -38,6 +39,7 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
     def __init__(self, name: str, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__(name, parameter_overrides=parameter_overrides)
         self.run_id = int(self.declare_parameter(RUN_ID_PARAMETER, 0).value)
+        self.trace = Trace(name)
         self._foreign_runs: set[tuple[str, int]] = set()
 
     def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Callable[[Any], None]:

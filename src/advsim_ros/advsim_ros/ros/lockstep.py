@@ -1,11 +1,13 @@
 """The episode protocol's lock-step replay of one query, as the scenario player runs it.
 
-For every history frame: /clock, the ego pose (/tf, /ego/odom) and a FrameRequest (lidar_resim
-answers with the sweep on the LiDAR topic); then wait until that sweep was delivered and,
-when configured, the stack's plan for it came back. No frame is skipped: the replay runs as
-fast as its slowest participant. A stack that is gone (its plan publisher vanished or was
-replaced) or silent past the timeout ends the query early. Everything the stack was sent and
-answered is digested in log time, so runs and re-runs of the same query can be compared.
+The player asks lidar_resim for the sweeps of the next frames ahead (FrameRequest; the answers
+come back on /advsim/rendered_points), so re-simulation overlaps the stack's planning. For every
+history frame, in order: /clock, the ego pose (/tf, /ego/odom) and the frame's sweep on the LiDAR
+topic; then, when configured, wait until the stack's plan for it came back before the next
+frame. No frame is skipped: the replay runs as fast as its slowest participant. A stack that is
+gone (its plan publisher vanished or was replaced) or silent past the timeout ends the query
+early. Everything the stack was sent and answered is digested in log time, so runs and re-runs
+of the same query can be compared.
 """
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ def stack_publishes(node: Node, topic: topics.TopicSpec) -> bool:
 def connected(node: Node, latched: Iterable[Any]) -> bool:
     """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, latched topics matched."""
     stack = bool(stack_endpoints(node, topics.LIDAR.name, False)) and stack_publishes(node, topics.PLAN)
-    resim = node.count_subscribers(topics.FRAME_REQUEST.name) >= 1 and node.count_publishers(topics.LIDAR.name) >= 1
+    resim = node.count_subscribers(topics.FRAME_REQUEST.name) >= 1 and node.count_publishers(topics.RENDERED.name) >= 1
     matched = all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in latched)
     return stack and resim and matched
 
@@ -134,11 +136,14 @@ class PlayerConfig:
     sweep_timeout: float = 30.0  # longest wait for the re-simulated sweep of one frame [s, wall clock]
     ready_timeout: float = 600.0  # longest wait, per query, for the stack and lidar_resim to be connected [s]
     wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
+    prefetch_frames: int = 3  # frames lidar_resim renders ahead of the one the stack is planning from
 
     def __post_init__(self) -> None:
         for name in ("plan_timeout", "sweep_timeout", "ready_timeout"):
             if not getattr(self, name) > 0.0:
                 raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
+        if self.prefetch_frames < 1:
+            raise ScenarioError(f"/scenario_player prefetch_frames: must be >= 1, got {self.prefetch_frames}")
 
 
 @dataclass
@@ -148,16 +153,18 @@ class Outputs:
     clock: Callable[[Any], None]
     tf: Callable[[Any], None]
     odometry: Callable[[Any], None]
+    lidar: Callable[[bytes], None]
     frame_request: Callable[[FrameRequestRecord], None]
     episode: Callable[[EpisodeRecord, Any, Any], None]  # record, detections, predictions (decoded or None)
     tf_message: Callable[[int, FloatArray], Any]  # sim stamp, world_T_ego -> tf2_msgs/TFMessage
+    trace: Callable[[str, int, int], None]  # event, query, frame (ros.trace)
 
 
 @dataclass
 class Inputs:
     """What the replay waits for (filled by the player's subscriptions)."""
 
-    sweeps: StampedArrivals
+    sweeps: StampedArrivals  # rendered by lidar_resim, to be sent
     plans: StampedArrivals
     detections: StampedArrivals
     predictions: StampedArrivals
@@ -182,6 +189,7 @@ def replay_query(
     history = list(frames)
     count = len(history)
     segment = clock.segment(query_id)
+    outputs.trace("query_start", query_id, -1)
     outputs.episode(EpisodeRecord(query_id, Phase.START, 0, count, segment), None, None)
     inputs_digest, plans_digest = InputDigest(), PlanDigest()
     delivered = received = awaited = 0
@@ -197,16 +205,26 @@ def replay_query(
     def stack_gone() -> bool:
         return liveness.check() or stop.is_set()
 
+    def request(index: int) -> None:
+        if index < count:
+            frame = history[index]
+            sim = clock.to_sim(query_id, frame.log_stamp_ns)
+            outputs.frame_request(FrameRequestRecord(query_id, index, frame.log_frame, sim, frame.world_T_ego))
+
+    for index in range(config.prefetch_frames):
+        request(index)
     for index, frame in enumerate(history):
         sim = clock.to_sim(query_id, frame.log_stamp_ns)
         decision = index == count - 1
+        sweep = inputs.sweeps.wait(sim, config.sweep_timeout, watch_stack)
+        request(index + config.prefetch_frames)
         outputs.clock(codec.clock_cdr(sim))
         outputs.tf(outputs.tf_message(sim, frame.world_T_ego))
         outputs.odometry(codec.restamp(frame.odometry, sim))
-        outputs.frame_request(FrameRequestRecord(query_id, index, frame.log_frame, sim, frame.world_T_ego))
         inputs_digest.frame(frame.log_stamp_ns, frame.odometry, frame.world_T_ego)
-        sweep = inputs.sweeps.wait(sim, config.sweep_timeout, watch_stack)
         if sweep is not None:
+            outputs.lidar(sweep)
+            outputs.trace("sweep_sent", query_id, index)
             delivered += 1
             inputs_digest.sweep(sweep)
         if decision or (config.wait_for_every_plan and plans_flowing):
@@ -215,6 +233,7 @@ def replay_query(
             if plan is None:
                 plans_flowing = False  # do not wait at every frame for a stack that has stopped answering
             else:
+                outputs.trace("plan_seen", query_id, index)
                 received += 1
                 decoded = codec.decode(plan, names.PATH)
                 plans_digest.plan(decoded, sim - frame.log_stamp_ns)
@@ -241,4 +260,5 @@ def replay_query(
         inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan,
     )  # fmt: skip
     outputs.episode(done, answers["detections"], answers["predictions"])
+    outputs.trace("done_sent", query_id, -1)
     return done

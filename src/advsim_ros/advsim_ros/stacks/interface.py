@@ -30,18 +30,21 @@ class StackError(ScenarioError):
 class TopicIoConfig:
     """How a stack's node reads its inputs (section ``io`` of params/stack_*.yaml; unused offline)."""
 
+    mount_source: str = "tf_static"  # where the ego -> LiDAR mount comes from: "tf_static" (waited for) or "parameter"
     sensor_mount: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # x, y, z [m], roll, pitch, yaw [rad] of
-    # the LiDAR on the ego, used while /tf_static has no ego -> sensor transform
+    # the LiDAR on the ego, with mount_source "parameter"
     pose_tolerance_s: float = 0.05  # a sweep takes the odometry pose this close to its stamp [s]
     max_pending: int = 10  # sweeps waiting for their odometry; older ones are dropped with a warning
     odometry_buffer: int = 100  # odometry messages kept for pose lookup and motion estimates
-    mount_wait_s: float = 2.0  # a sweep waits this long (wall clock) for /tf_static before sensor_mount is used [s]
+    mount_wait_s: float = 2.0  # warn when a sweep has waited this long (wall clock) for /tf_static [s]
 
     def __post_init__(self) -> None:
         if len(self.sensor_mount) != 6 or not np.all(np.isfinite(self.sensor_mount)):
             raise StackError(f"io sensor_mount: expected 6 finite numbers, got {list(self.sensor_mount)}")
         if not (self.pose_tolerance_s >= 0 and self.mount_wait_s >= 0):
             raise StackError("io pose_tolerance_s, mount_wait_s: must be >= 0")
+        if self.mount_source not in ("tf_static", "parameter"):
+            raise StackError(f"io mount_source: 'tf_static' or 'parameter', got {self.mount_source!r}")
         if self.max_pending < 1 or self.odometry_buffer < 2:
             raise StackError("io max_pending must be >= 1 and odometry_buffer >= 2")
 

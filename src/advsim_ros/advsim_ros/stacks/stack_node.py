@@ -3,7 +3,7 @@
 Subscribes to the LiDAR (sensor-data QoS), the ego odometry, /tf_static (for the ego ->
 sensor mount) and the road map; a sweep is planned from as soon as the odometry for its
 stamp is there (sweeps may arrive before or after their odometry) and the sensor mount is
-known (from /tf_static, or the io.sensor_mount parameter after io.mount_wait_s without it). Publishes for every
+known (from /tf_static, or the io.sensor_mount parameter with io.mount_source: parameter). Publishes for every
 sweep a nav_msgs/Path in the odometry's world frame stamped with the sweep's stamp and,
 when the stack makes them, its detections and predictions. Parameters are the stack's
 config sections, declared as dotted ROS parameters (params/stack_*.yaml).
@@ -31,6 +31,7 @@ from advsim_ros.contract.spatial import transforms_of
 from advsim_ros.core.types import FloatArray, ScenarioError
 from advsim_ros.ros.params import declare_config
 from advsim_ros.ros.qos import profile
+from advsim_ros.ros.trace import Trace
 from advsim_ros.stacks.interface import AutonomyStack, StackFrame, TopicIoConfig, points_xyz
 from advsim_ros.stacks.params import section_types
 from advsim_ros.stacks.ros_io import PoseBuffer, mount_matrix, output_messages
@@ -58,6 +59,7 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         self._fallback_mount = mount_matrix(io.sensor_mount)
         self._warned_mount = False
         self._first_cloud_at: float | None = None  # wall clock of the first sweep, for io.mount_wait_s
+        self.trace = Trace(name)
         # outputs are published as CDR built by the contract's builders
         self._publish_plan = self.create_publisher(Path, topics.PLAN.name, profile(topics.PLAN.offered)).publish
         self._publish_detections = self.create_publisher(
@@ -76,6 +78,7 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
 
     def _on_tf_static(self, message: TFMessage) -> None:
         self._static.update(transforms_of(message))
+        self._process_pending()  # sweeps that waited for the mount
 
     def _on_map(self, message: RoadMap) -> None:
         try:
@@ -92,6 +95,7 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         self._process_pending()
 
     def _on_cloud(self, message: PointCloud2) -> None:
+        self.trace("sweep_received")
         if self._first_cloud_at is None:
             self._first_cloud_at = time.monotonic()
         self._pending.append(message)
@@ -112,19 +116,21 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         return None
 
     def _mount(self, sensor_frame: str) -> FloatArray | None:
-        """ego -> sensor: /tf_static, else (after io.mount_wait_s) the io.sensor_mount parameter; None: wait."""
+        """ego -> sensor from /tf_static (None: wait for it), or io.sensor_mount when io.mount_source says so.
+
+        Never a timed fallback: a plan must not depend on whether /tf_static happened to arrive in time.
+        """
+        if self._io.mount_source == "parameter":
+            return self._fallback_mount
         found = self._static_mount(sensor_frame)
-        if found is not None:
-            return found
         waited = time.monotonic() - (self._first_cloud_at or time.monotonic())
-        if waited < self._io.mount_wait_s:
-            return None
-        if not self._warned_mount:
+        if found is None and waited >= self._io.mount_wait_s and not self._warned_mount:
             self.get_logger().warning(
-                f"no /tf_static transform {self._poses.ego_frame} -> {sensor_frame}: using parameter io.sensor_mount"
+                f"still no /tf_static transform {self._poses.ego_frame} -> {sensor_frame} after "
+                f"{self._io.mount_wait_s} s: sweeps wait for it (or set io.mount_source: parameter)"
             )
             self._warned_mount = True
-        return self._fallback_mount
+        return found
 
     def _process_pending(self) -> None:
         tolerance = int(self._io.pose_tolerance_s * 1e9)
@@ -146,6 +152,7 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
             self._plan(cloud, stamp, mount, *found)
 
     def _plan(self, cloud: PointCloud2, stamp: int, mount: FloatArray, world_T_ego: FloatArray, motion: Any) -> None:
+        self.trace("planning")
         try:
             frame = StackFrame(
                 stamp_ns=stamp,
@@ -159,10 +166,12 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
             self.get_logger().error(f"sweep at {stamp} ns: {error}")
             return
         plan, detections, predictions = output_messages(output, stamp, self._poses.world_frame)
+        self.trace("stepped")
         self._publish_plan(plan)
         if detections is not None:
             self._publish_detections(detections)
         if predictions is not None:
             self._publish_predictions(predictions)
+        self.trace("published")
         total = output.timings_s.get("total", float("nan"))
         self.get_logger().debug(f"planned from the sweep at {stamp} ns in {1000.0 * total:.1f} ms")

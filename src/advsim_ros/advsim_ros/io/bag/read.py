@@ -181,6 +181,8 @@ def _assemble(path: Path, collected: _Collected, config: BagConfig, own_bag: boo
         geometry: dict[str, Any] = {}
         if info is not None:
             geometry = {"ego_size": info.ego_size, "ego_forward_offset": info.ego_forward_offset}
+        if sensor_frame:
+            geometry["sensor_frame"] = sensor_frame
         return Scenario(
             scenario_id=info.scenario_id if info is not None else path.name,
             frame_stamps_ns=frames,

@@ -53,12 +53,8 @@ _QOS_BY_TOPIC = {spec.name: spec.offered for spec in topics.ALL_TOPICS}
 
 
 def sensor_frame_of(scenario: Scenario, config: BagConfig) -> str:
-    frames = {sweep.frame_id for sweep in scenario.sweeps}
-    if len(frames) > 1:
-        raise BagError(f"scenario {scenario.scenario_id}: sweeps come in several frames {sorted(frames)}")
-    if frames:
-        return frames.pop()
-    return config.sensor_frame or "lidar"
+    """The LiDAR frame's name: the scenario's, else the configured one, else "lidar"."""
+    return scenario.sensor_frame or config.sensor_frame or "lidar"
 
 
 def _check_sensor_poses(scenario: Scenario) -> None:
