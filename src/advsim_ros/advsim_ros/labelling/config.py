@@ -78,7 +78,7 @@ class GateConfig:
             max_heading_misalignment_deg=self.max_heading_misalignment_deg,
         )
         if len(self.vehicle_height) != 2 or not 0 < self.vehicle_height[0] < self.vehicle_height[1]:
-            raise ScenarioError(f"labelling gates vehicle_height: expected [low, high], got {list(self.vehicle_height)}")
+            raise ScenarioError(f"labelling gates vehicle_height: expected [low, high], got {self.vehicle_height}")
         known = {"vehicle", "pedestrian", "cyclist", "other"}
         if not self.classes or not set(self.classes) <= known:
             raise ScenarioError(f"labelling gates classes: expected a non-empty subset of {sorted(known)}")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -173,9 +174,7 @@ def _kitti_dontcare(labels: str) -> dict[int, FloatArray]:
     return {frame: np.array(rows) for frame, rows in boxes.items()}
 
 
-def kitti_label_region(
-    calib_text: str, labels_text: str, T_rect_velo: FloatArray, world_T_velo: FloatArray
-) -> Region:
+def kitti_label_region(calib_text: str, labels_text: str, T_rect_velo: FloatArray, world_T_velo: FloatArray) -> Region:
     """Where KITTI tracking labels exist: inside the left colour camera's image and outside its DontCare boxes.
 
     ``world_T_velo`` (F, 4, 4) are the Velodyne poses of the frames the region is asked about.
@@ -199,3 +198,17 @@ def kitti_label_region(
         return inside
 
     return region
+
+
+def kitti_sequence_region(root: Path, seq: str, world_T_velo: FloatArray) -> Region:
+    """``kitti_label_region`` for a KITTI tracking folder (calib/<seq>.txt, label_02/<seq>.txt)."""
+    from advsim_ros.io.kitti import read_kitti_calibration
+
+    calib = Path(root) / "calib" / f"{seq}.txt"
+    labels = Path(root) / "label_02" / f"{seq}.txt"
+    return kitti_label_region(
+        calib.read_text(encoding="utf-8"),
+        labels.read_text(encoding="utf-8"),
+        read_kitti_calibration(calib),
+        world_T_velo,
+    )

@@ -76,9 +76,7 @@ def label_candidates(
             actor_id=f"auto_{index}", actor_class=track.actor_class, size=track.size, stamps_ns=track.stamps_ns,
             centers=track.centers, yaws=track.yaws,
         )  # fmt: skip
-        numbered.append(
-            dataclasses.replace(item, track=renamed)
-        )
+        numbered.append(dataclasses.replace(item, track=renamed))
     return LabellingResult(tracks=tuple(numbered), num_candidates=candidates.count)
 
 
