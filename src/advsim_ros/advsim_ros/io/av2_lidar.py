@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from advsim_ros.core.lidar.assets import template_surface
 from advsim_ros.core.lidar.boxes import yaw_pose
@@ -241,8 +242,6 @@ def _world_points(sweep: Sweep) -> FloatArray:
 
 
 def _chamfer(a: FloatArray, b: FloatArray) -> float:
-    from scipy.spatial import cKDTree
-
     if a.shape[0] == 0 or b.shape[0] == 0:
         return float("nan")
     return 0.5 * float(cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
@@ -264,23 +263,23 @@ def compare_with_real(
         sim_near = sim_xyz[np.linalg.norm(sim_xyz[:, :2] - centre[:2], axis=1) <= radius]
         ratios = []
         real_in_actors, sim_in_actors = [], []
+        real_tree, sim_tree = cKDTree(real_near[:, :2]), cKDTree(sim_near[:, :2])
         for actor in real.actors:
             row = int(np.searchsorted(actor.stamps_ns, sweep.stamp_ns))
             if row >= actor.stamps_ns.shape[0] or int(actor.stamps_ns[row]) != sweep.stamp_ns:
                 continue
             box_T_world = np.linalg.inv(yaw_pose(actor.centers[row], float(actor.yaws[row])))
             half = 0.5 * actor.size + 0.1  # a margin for the float16 coordinates and the labels
-
-            def inside(xyz: FloatArray, box_T_world: FloatArray = box_T_world, half: FloatArray = half) -> FloatArray:
-                local = xyz @ box_T_world[:3, :3].T + box_T_world[:3, 3]
-                mask: FloatArray = np.all(np.abs(local) <= half, axis=1)
-                return mask
-
-            real_mask, sim_mask = inside(real_near), inside(sim_near)
-            real_in_actors.append(real_near[real_mask])
-            sim_in_actors.append(sim_near[sim_mask])
-            if int(real_mask.sum()) >= min_points:
-                ratios.append(float(sim_mask.sum()) / float(real_mask.sum()))
+            reach = float(np.hypot(half[0], half[1]))
+            inside = []
+            for points, tree in ((real_near, real_tree), (sim_near, sim_tree)):
+                near = points[tree.query_ball_point(actor.centers[row, :2], reach)]
+                local = near @ box_T_world[:3, :3].T + box_T_world[:3, 3]
+                inside.append(near[np.all(np.abs(local) <= half, axis=1)])
+            real_in_actors.append(inside[0])
+            sim_in_actors.append(inside[1])
+            if inside[0].shape[0] >= min_points:
+                ratios.append(inside[1].shape[0] / inside[0].shape[0])
         results.append(
             RealSweepComparison(
                 stamp_ns=sweep.stamp_ns,

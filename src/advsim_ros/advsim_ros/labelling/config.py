@@ -6,6 +6,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.types import ScenarioError
@@ -110,7 +111,7 @@ _SECTIONS = {"ground": GroundConfig, "detector": DetectorConfig, "tracker": Offl
 def load_labelling_config(path: Path) -> LabellingConfig:
     """The labeller's parameters from a file in the ROS shape (``/advsim_label: ros__parameters: ...``)."""
     parameters = dict(load_node_params(Path(path), LABELLING_NODE))
-    sections = {
+    sections: dict[str, Any] = {
         name: config_from_mapping(kind, parameters.pop(name), f"{path} {name}")
         for name, kind in _SECTIONS.items()
         if name in parameters

@@ -25,6 +25,7 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, Scenario, ScenarioError
+from advsim_ros.io.bag import BagConfig
 
 ACTOR_TRACK_ARRAY = "advsim_msgs/msg/ActorTrackArray"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
@@ -60,8 +61,10 @@ def read_bag_static_transforms(bag: Path, topic: str) -> dict[tuple[str, str], F
     transforms: dict[tuple[str, str], FloatArray] = {}
     with _reader(bag) as reader:
         connections = [c for c in reader.connections if c.topic == topic and c.msgtype == TF_MESSAGE]
+        if not connections:  # rosbags reads every topic when given none
+            return transforms
         for connection, _, raw in reader.messages(connections=connections):
-            message = reader.deserialize(raw, connection.msgtype)
+            message: Any = reader.deserialize(raw, connection.msgtype)
             for item in message.transforms:
                 key = (str(item.header.frame_id), str(item.child_frame_id))
                 transforms[key] = _matrix(item.transform.translation, item.transform.rotation)
@@ -102,9 +105,9 @@ def _class_of(name: str, length: float) -> ActorClass:
 
 
 def tracks_from_topic(
-    bag: Path, topic: str, scenario: Scenario, config: Any, min_frames: int = 2
+    bag: Path, topic: str, scenario: Scenario, config: BagConfig, min_frames: int = 2
 ) -> tuple[ActorTrack, ...]:
-    """Actor tracks (world frame) from a perception topic of the bag; ``config`` is the BagConfig."""
+    """Actor tracks (world frame) from a perception topic of the bag (frame names from ``config``)."""
     stamps = scenario.frame_stamps_ns
     half_period = int(np.median(np.diff(stamps)) // 2) if stamps.shape[0] > 1 else 50_000_000
     mount = scenario.ego_T_sensor
@@ -114,10 +117,11 @@ def tracks_from_topic(
     def to_world(frame_id: str, frame: int, pose: FloatArray) -> FloatArray:
         if frame_id == config.world_frame:
             return pose
+        world_T_ego: FloatArray = scenario.ego.poses[frame]
         if frame_id == config.ego_frame:
-            return scenario.ego.poses[frame] @ pose
+            return world_T_ego @ pose
         if frame_id in sensor_frames:
-            return scenario.ego.poses[frame] @ mount @ pose
+            return world_T_ego @ mount @ pose
         raise PerceptionTopicError(
             f"bag {bag}: {topic} has boxes in frame {frame_id!r}; expected {config.world_frame!r}, "
             f"{config.ego_frame!r} or the LiDAR frame {sorted(sensor_frames)}"
@@ -146,7 +150,7 @@ def tracks_from_topic(
                 f"bag {bag}: {topic} is {msgtype}; tracks are read from {ACTOR_TRACK_ARRAY} or {MARKER_ARRAY}"
             )
         for connection, _, raw in reader.messages(connections=connections):
-            message = reader.deserialize(raw, connection.msgtype)
+            message: Any = reader.deserialize(raw, connection.msgtype)
             if msgtype == ACTOR_TRACK_ARRAY:
                 frame_id = str(message.header.frame_id)
                 for track in message.tracks:
