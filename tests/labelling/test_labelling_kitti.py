@@ -97,3 +97,19 @@ def test_a_bag_without_poses_or_mount_fails_naming_the_mount(
     with pytest.raises(LabelError, match="--mount"):
         label_bag(bag, tmp_path / "out", bag_config=BagConfig())
     assert not (tmp_path / "out").exists()
+
+
+def test_label_command_on_a_folder_that_is_not_a_bag_exits_1_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from advsim_ros.cli import main
+
+    (tmp_path / "not_a_bag").mkdir()
+    assert main(["label", str(tmp_path / "not_a_bag"), "-o", str(tmp_path / "out")]) == 1
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("advsim label: error:")
+    assert "metadata.yaml" in error
+    assert len(error.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+    assert main(["label", str(tmp_path / "not_a_bag"), "-o", str(tmp_path / "out"), "--mount", "1,2"]) == 1
+    assert "six" in capsys.readouterr().err
