@@ -15,6 +15,7 @@ ALLOWED = {
     "stacks": {"core", "contract", "io", "ros", "stacks"},
     "nodes": {"core", "contract", "io", "ros", "nodes"},
     "attack": {"core", "contract", "io", "ros", "nodes", "attack"},
+    "labelling": {"core", "contract", "io", "stacks", "labelling"},
 }
 
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from advsim_ros.core.types import DrivableArea
 from advsim_ros.core.metrics import ActorFutures
 from advsim_ros.core.objective import (
     PRESET_NAMES,
@@ -19,7 +18,7 @@ from advsim_ros.core.objective import (
     scorer_settings_from_params,
 )
 from advsim_ros.core.params import ParamsError
-from advsim_ros.core.types import EgoTrajectory, Plan, RoadMap, ScenarioError
+from advsim_ros.core.types import DrivableArea, EgoTrajectory, Plan, RoadMap, ScenarioError
 
 REPO = Path(__file__).resolve().parents[2]
 DT = 0.1  # [s]
@@ -99,6 +98,20 @@ def test_leaving_the_drivable_area_and_the_lane_costs_only_when_a_map_is_given()
     plan, human = _plan(_straight()), _human(_straight())
     on_road = evaluate_objective(plan, human, NO_ACTORS, EGO_SIZE, CONFIG, drivable=drivable, road_map=road_map)
     assert on_road.comfort == 0.0
+
+
+def test_lane_cost_works_with_centrelines_of_different_lengths() -> None:
+    # Real maps (Argoverse 2) have lanes of many point counts; the plan runs 5 m left of the nearer one.
+    road_map = RoadMap(
+        lane_centerlines=(
+            np.array([[-50.0, 0.0], [50.0, 0.0], [150.0, 0.0]]),
+            np.array([[-50.0, -20.0], [150.0, -20.0]]),
+        )
+    )
+    plan, human = _plan(_straight(lateral=5.0)), _human(_straight(lateral=5.0))
+    terms = evaluate_objective(plan, human, NO_ACTORS, EGO_SIZE, CONFIG, road_map=road_map)
+    assert terms.lane_available
+    assert terms.comfort == pytest.approx(STEPS * CONFIG.lane_weight * (5.0 - CONFIG.lane_half_width))
 
 
 def test_presets_switch_terms_and_the_full_objective_is_their_weighted_sum() -> None:

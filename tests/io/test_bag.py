@@ -17,6 +17,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from advsim_ros.contract.pointcloud import PointCloudError
 from advsim_ros.core.params import ParamsError
 from advsim_ros.core.types import ActorClass, ActorTrack, EgoTrajectory, Scenario, Sweep
 from advsim_ros.io.av2 import load_av2_log
@@ -30,7 +31,6 @@ from advsim_ros.io.bag import (
     write_scenario_bag,
 )
 from advsim_ros.io.kitti import kitti_velodyne_dir
-from advsim_ros.contract.pointcloud import PointCloudError
 
 REPO = Path(__file__).resolve().parents[2]
 STORE = get_typestore(Stores.ROS2_JAZZY)

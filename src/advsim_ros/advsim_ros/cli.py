@@ -36,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     # each area adds its commands here through _add_<name>_commands(subparsers)
     _add_data_commands(subparsers)
+    _add_label_commands(subparsers)
     _add_synth_commands(subparsers)
     _add_attack_commands(subparsers)
     _add_stack_commands(subparsers)
@@ -70,9 +71,23 @@ def _add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     av2.add_argument("-o", "--output", type=Path, required=True, help="bag folder to write")
     av2.add_argument("--params", **bag_params)
     av2.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    av2.add_argument(
+        "--lidar",
+        choices=("real", "simulate"),
+        default="real",
+        help="real: the log's own sweeps (1-2 or none); simulate: a ray-cast sweep every frame (docs/data.md)",
+    )
+    av2.add_argument("--seed", type=int, default=0, help="seed of the simulated LiDAR's noise and ray drop")
     av2.set_defaults(
         run=lambda args: _report(
-            commands.convert_av2(args.log_dir, args.output, params=args.params, overwrite=args.overwrite).describe()
+            commands.convert_av2(
+                args.log_dir,
+                args.output,
+                params=args.params,
+                overwrite=args.overwrite,
+                lidar=args.lidar,
+                seed=args.seed,
+            ).describe()
         )
     )
 
@@ -84,6 +99,40 @@ def _add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     curate.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     curate.add_argument("--json", action="store_true", help="print the windows as JSON")
     curate.set_defaults(run=_run_curate)
+
+
+def _add_label_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """`advsim label`: actor tracks (and ego poses if missing) for a LiDAR bag (logic in labelling.command)."""
+    label = subparsers.add_parser(
+        "label", help="auto-label a bag of LiDAR: actor tracks, and KISS-ICP ego poses when it has none"
+    )
+    label.add_argument("bag", type=Path, help="rosbag2 folder with a PointCloud2 topic (see --bag-params)")
+    label.add_argument("-o", "--output", type=Path, required=True, help="scenario bag to write")
+    label.add_argument(
+        "--tracks-topic", default=None, help="take the tracks from this topic (ActorTrackArray or MarkerArray cubes)"
+    )
+    label.add_argument("--mount", default=None, help="LiDAR mount in the ego frame: x,y,z,roll,pitch,yaw [m, rad]")
+    label.add_argument("--params", type=Path, default=None, help="labeller settings (default: params/labelling.yaml)")
+    label.add_argument("--bag-params", type=Path, default=None, help="bag topics and frames (default: params/bag.yaml)")
+    label.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    label.set_defaults(run=_run_label)
+
+
+def _run_label(args: argparse.Namespace) -> int:
+    from advsim_ros.io.bag import load_bag_config
+    from advsim_ros.labelling.command import label_bag
+    from advsim_ros.labelling.odometry import mount_from_string
+
+    report = label_bag(
+        args.bag,
+        args.output,
+        tracks_topic=args.tracks_topic,
+        mount=mount_from_string(args.mount) if args.mount is not None else None,
+        params=args.params,
+        bag_config=load_bag_config(args.bag_params) if args.bag_params is not None else None,
+        overwrite=args.overwrite,
+    )
+    return _report(report.describe())
 
 
 def _run_curate(args: argparse.Namespace) -> int:

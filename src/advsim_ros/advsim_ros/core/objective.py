@@ -176,7 +176,9 @@ def _lane_distance(points: FloatArray, road_map: RoadMap) -> FloatArray:
     """(H,) distance from each point to the nearest lane centreline [m]."""
     import shapely
 
-    lines = shapely.multilinestrings([np.asarray(lane) for lane in road_map.lane_centerlines])
+    # MultiLineString, not multilinestrings(): lanes have different point counts (real maps), which
+    # numpy cannot stack into one array.
+    lines = shapely.MultiLineString([np.asarray(lane) for lane in road_map.lane_centerlines])
     result: FloatArray = shapely.distance(shapely.points(points), lines)
     return result
 

@@ -7,6 +7,8 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
 from advsim_ros.core.curation import (
     CurationConfig,
     CurationWindow,
@@ -80,13 +82,29 @@ def convert_kitti(
 
 
 def convert_av2(
-    log_dir: Path, output: Path, *, params: Path | None = None, overwrite: bool = False
+    log_dir: Path,
+    output: Path,
+    *,
+    params: Path | None = None,
+    overwrite: bool = False,
+    lidar: str = "real",
+    seed: int = 0,
 ) -> ConversionReport:
-    """Argoverse 2 log -> scenario bag."""
+    """Argoverse 2 log -> scenario bag; ``lidar="simulate"`` renders a sweep per frame (io/av2_lidar.py)."""
+    if lidar not in ("real", "simulate"):
+        raise ValueError(f"--lidar must be 'real' or 'simulate', got {lidar!r}")
     started = time.perf_counter()
     config = bag_config(params)
+    if output.exists() and not overwrite:  # before minutes of rendering
+        raise ValueError(f"{output} exists already; remove it or choose another output path")
     scenario = load_av2_log(log_dir)
-    return _write(scenario, output, f"av2/{Path(log_dir).name}", config, overwrite, started)
+    source = f"av2/{Path(log_dir).name}"
+    if lidar == "simulate":
+        from advsim_ros.io.av2_lidar import SIMULATED_SOURCE_NOTE, simulate_av2_lidar
+
+        scenario = simulate_av2_lidar(scenario, Path(log_dir), np.random.default_rng(seed))
+        source = f"{source}: {SIMULATED_SOURCE_NOTE}"
+    return _write(scenario, output, source, config, overwrite, started)
 
 
 @dataclass(frozen=True)

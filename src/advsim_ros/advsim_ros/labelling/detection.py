@@ -1,0 +1,89 @@
+"""Per-sweep candidate boxes for the offline tracker, in the world frame.
+
+The candidates come from the reference stack's ground removal and clustering detector
+(``stacks/modular/ground.py``, ``detector.py``: lowest-return ground grid, BEV connected
+components, L-shape fitting, completion of partly seen vehicles). Measured on KITTI 0000
+against the labels (bench/bench_labelling.py, ``per_sweep_detector``), it finds most
+vehicles per sweep but also many car-sized pieces of hedges and walls; the offline stages
+(tracking over the whole log, smoothing, per-track size and gates) are what make labels
+out of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from advsim_ros.core.geometry import wrap_angle
+from advsim_ros.core.types import FloatArray, IntArray
+from advsim_ros.labelling.config import LabellingConfig
+from advsim_ros.stacks.modular.detector import CLASS_ORDER, detect
+from advsim_ros.stacks.modular.ground import split_ground
+
+
+@dataclass(frozen=True, eq=False)
+class Candidates:
+    """Every candidate box of a log, world frame, one row per box."""
+
+    frames: IntArray  # (K,) frame index of each box
+    boxes: FloatArray  # (K, 5) x, y [m], yaw [rad], length, width [m]
+    z: FloatArray  # (K,) box centre height [m]
+    heights: FloatArray  # (K,) box height [m]
+    classes: IntArray  # (K,) index into stacks.modular.detector.CLASS_ORDER
+    confidences: FloatArray  # (K,) detector score in [0, 1]
+    num_points: IntArray  # (K,) returns in the cluster
+    sensor_xy: FloatArray  # (K, 2) the sensor's world position when the box was seen [m]
+
+    @property
+    def count(self) -> int:
+        return int(self.frames.shape[0])
+
+    def take(self, rows: IntArray) -> Candidates:
+        return Candidates(
+            self.frames[rows], self.boxes[rows], self.z[rows], self.heights[rows], self.classes[rows],
+            self.confidences[rows], self.num_points[rows], self.sensor_xy[rows],
+        )  # fmt: skip
+
+
+def _rigid_apply(transform: FloatArray, xyz: FloatArray) -> FloatArray:
+    result: FloatArray = xyz @ transform[:3, :3].T + transform[:3, 3]
+    return result
+
+
+def detect_sweep(
+    xyz_sensor: FloatArray, world_T_ego: FloatArray, ego_T_sensor: FloatArray, frame: int, config: LabellingConfig
+) -> Candidates:
+    """Candidate boxes of one sweep (points (N, 3) in the sensor frame [m]) in the world frame."""
+    xyz_ego = _rigid_apply(ego_T_sensor, np.asarray(xyz_sensor, dtype=np.float64)).astype(np.float32)
+    split = split_ground(xyz_ego, config.ground)
+    found = detect(split, config.ground, config.detector, ego_T_sensor[:2, 3])
+    rotation = world_T_ego[:2, :2]
+    centres = found.boxes[:, :2] @ rotation.T + world_T_ego[:2, 3]
+    ego_yaw = float(np.arctan2(world_T_ego[1, 0], world_T_ego[0, 0]))
+    boxes = np.column_stack([centres, wrap_angle(found.boxes[:, 2] + ego_yaw), found.boxes[:, 3:5]])
+    sensor_xy = (world_T_ego @ ego_T_sensor)[:2, 3]
+    return Candidates(
+        frames=np.full(found.count, frame, dtype=np.int64),
+        boxes=boxes.reshape(-1, 5),
+        z=found.z + world_T_ego[2, 3],
+        heights=found.heights,
+        classes=found.classes,
+        confidences=found.confidences,
+        num_points=found.num_points,
+        sensor_xy=np.tile(sensor_xy, (found.count, 1)),
+    )
+
+
+def concatenate(parts: list[Candidates]) -> Candidates:
+    if not parts:
+        empty = np.zeros(0)
+        return Candidates(
+            np.zeros(0, np.int64), np.zeros((0, 5)), empty, empty, np.zeros(0, np.int64), empty,
+            np.zeros(0, np.int64), np.zeros((0, 2)),
+        )  # fmt: skip
+    return Candidates(*(np.concatenate([getattr(part, name) for part in parts]) for name in _FIELDS))
+
+
+_FIELDS = ("frames", "boxes", "z", "heights", "classes", "confidences", "num_points", "sensor_xy")
+VEHICLE_CODE = CLASS_ORDER.index(CLASS_ORDER[0])  # CLASS_ORDER starts with the vehicle class
