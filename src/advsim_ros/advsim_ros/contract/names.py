@@ -17,6 +17,7 @@ QUATERNION = "geometry_msgs/msg/Quaternion"
 VECTOR3 = "geometry_msgs/msg/Vector3"
 TRANSFORM = "geometry_msgs/msg/Transform"
 TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 
 # advsim_msgs (msg_defs/advsim_msgs/msg)
 ACTOR_STATE = "advsim_msgs/msg/ActorState"

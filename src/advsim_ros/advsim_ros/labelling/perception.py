@@ -28,7 +28,6 @@ from advsim_ros.contract.spatial import pose_matrix, transforms_of
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, Scenario, ScenarioError
 from advsim_ros.io.bag import BagConfig, BagReader
 
-MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 _CUBE = 1  # visualization_msgs/Marker CUBE
 _DELETE_ACTIONS = (2, 3)  # DELETE, DELETEALL
 _CLASS_WORDS = (
@@ -116,9 +115,10 @@ def tracks_from_topic(
         if not connections:
             raise PerceptionTopicError(f"bag {bag} has no topic {topic} (it has {sorted(reader.reader.topics)})")
         msgtype = connections[0].msgtype
-        if msgtype not in (names.ACTOR_TRACK_ARRAY, MARKER_ARRAY):
+        if msgtype not in (names.ACTOR_TRACK_ARRAY, names.MARKER_ARRAY):
             raise PerceptionTopicError(
-                f"bag {bag}: {topic} is {msgtype}; tracks are read from {names.ACTOR_TRACK_ARRAY} or {MARKER_ARRAY}"
+                f"bag {bag}: {topic} is {msgtype}; "
+                f"tracks are read from {names.ACTOR_TRACK_ARRAY} or {names.MARKER_ARRAY}"
             )
         for _, _, message in reader.messages(connections):
             if msgtype == names.ACTOR_TRACK_ARRAY:
