@@ -104,7 +104,7 @@ def uninterrupted(kitti_window_bag: Path, tmp_path_factory: pytest.TempPathFacto
 
 def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path) -> None:
     """Run the attack, kill -9 it when ``point()`` holds, check that nothing of its graph is left within 5 s."""
-    player_log = out / "run" / "logs" / "scenario_player.log"
+    player_log = out / "run" / "logs" / "graph_nodes.log"
     journaled_before = set(_journaled(out))
     offset = player_log.stat().st_size if player_log.exists() else 0
     orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -130,7 +130,7 @@ def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_r
     stack, reference = uninterrupted
     out = tmp_path / "killed"
     argv = _attack_argv(kitti_window_bag, out, stack)
-    player_log = out / "run" / "logs" / "scenario_player.log"
+    player_log = out / "run" / "logs" / "graph_nodes.log"
     kill_points: list[Callable[[], bool]] = [
         lambda: (out / "run" / "graph.json").exists(),  # while the graph starts
         lambda: len(_journaled(out)) >= 3,  # in the middle of the search

@@ -25,6 +25,7 @@ from advsim_ros.contract.protocol import (
     EpisodeRecord,
     FrameRequestRecord,
     ScoreRecord,
+    SearchStatusRecord,
     SelectionRecord,
     episode_from_msg,
     episode_msg,
@@ -34,6 +35,8 @@ from advsim_ros.contract.protocol import (
     perturbation_msg,
     score_from_msg,
     score_msg,
+    search_status_from_msg,
+    search_status_msg,
     selection_from_msg,
     selection_msg,
 )
@@ -160,6 +163,11 @@ ROUND_TRIPS: dict[str, tuple[Any, Callable[[Any], Any], Callable[[Any], Any]]] =
         lambda record: score_msg(record, 7),
         score_from_msg,
     ),
+    names.SEARCH_STATUS: (
+        SearchStatusRecord(12, True),
+        lambda record: search_status_msg(record, 7),
+        search_status_from_msg,
+    ),
     names.ROAD_MAP: (
         RoadMap((np.array([[0.0, 0], [10, 0], [10, 5]]),), (np.array([[4200.125, -1500.25], [4210.5, -1490.0]]),)),
         lambda record: road_map_msg(record, 5, "world"),
@@ -186,7 +194,7 @@ def test_every_contract_message_survives_builder_rclpy_and_parser_unchanged(type
 
 def test_every_protocol_topic_has_a_round_trip_and_a_run_id() -> None:
     protocol = (topics.ACTOR_SELECTION, topics.PERTURBATION, topics.PERTURBED_TRACKS, topics.FRAME_REQUEST,
-                topics.EPISODE, topics.SCORE)  # fmt: skip
+                topics.EPISODE, topics.SCORE, topics.SEARCH_STATUS)  # fmt: skip
     for topic in protocol:
         assert topic.msgtype in ROUND_TRIPS
         assert "run_id" in message_class(topic.msgtype).get_fields_and_field_types()

@@ -138,6 +138,7 @@ SAMPLES: dict[str, list[dict]] = {
             },
         }
     ],
+    "advsim_msgs/msg/SearchStatus": [{"run_id": 5, "queries_asked": 78, "finished": True}],
     "advsim_msgs/msg/Polyline": [{"x": [1.0, 2.0, 3.5], "y": [-1.0, 0.5, 4.0]}],
     "advsim_msgs/msg/RoadMap": [
         {

@@ -114,7 +114,7 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     section(parameters["lidar_resim"], "", ResimNodeConfig, "/lidar_resim")
     section(parameters["lidar_resim"], "resim", ResimConfig, "/lidar_resim")
     section(parameters["perturber"], "", PerturberConfig, "/perturber")
-    section(parameters["scorer"], "drivable", DrivableConfig, "/scorer")
+    section(parameters["scorer"], "drivable", DrivableConfig, "drivable")
     scorer = {k: v for k, v in parameters["scorer"].items() if k in ("objective", "metrics")}
     scorer_settings_from_params(scorer, "/scorer")
     search = parameters["search"]

@@ -1,6 +1,6 @@
 """Following a running attack graph: journal finished queries, restart a crashed stack, fail clearly.
 
-The loop ends when the search node has exited after its last query (code 0) and every query it
+The loop ends when the search says it is finished (/advsim/search_status) and every query it
 asked for is journaled (replay mode: when every requested run is). It fails with one message
 naming the cause when a node of the graph dies, when the stack never connects (with what the
 stack does instead, read from the ROS graph), or when nothing progresses for too long.
@@ -20,7 +20,6 @@ from advsim_ros.ros.launcher import Launcher, NodeSpec
 from advsim_ros.ros.monitor import AttackMonitor
 
 _POLL = 0.1  # [s]
-SEARCH_NODE = "search"
 
 
 def _log_tail(path: Path, lines: int = 30) -> str:
@@ -53,7 +52,6 @@ def follow(
 
     crashes: list[dict[str, Any]] = []
     graph_names = {spec.name for spec in graph}
-    search_done = options.replay_only
     replay_next = len(journal.records) if options.replay_only else -1
     connected_once = False
     started = last_change = time.monotonic()
@@ -75,10 +73,7 @@ def follow(
                 if replay_next < options.replay_runs:
                     monitor.request_replay(replay_next, world_frame)
         for name, code in launcher.exited().items():
-            if name == SEARCH_NODE and code == 0:
-                launcher.stop(name)
-                search_done = True
-            elif name in graph_names:
+            if name in graph_names:
                 log = launcher.log_path(name)
                 raise AttackError(f"node {name} exited with code {code}; its log ({log}):\n{_log_tail(log)}")
             elif name == stack.name:
@@ -94,7 +89,7 @@ def follow(
                 launcher.start(stack)
         if options.replay_only and len(journal.records) >= options.replay_runs:
             break
-        if search_done and not options.replay_only and monitor.idle():
+        if monitor.search_finished and not options.replay_only and monitor.idle():
             break
         now = time.monotonic()
         if not connected_once:

@@ -35,7 +35,7 @@ from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.atomic import write_json_atomically
 from advsim_ros.core.curation import crop_frames
-from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
+from advsim_ros.core.drivable import DrivableConfig
 from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.query import query_sweep
@@ -43,6 +43,7 @@ from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.types import Perturbation, Scenario, Sweep, replace_actors
 from advsim_ros.io.bag import BagReader, read_scenario_bag, write_scenario_bag
 from advsim_ros.io.cache import cache_root
+from advsim_ros.io.drivable_cache import bag_drivable_area
 
 ADVERSARIAL_BAG = "adversarial"
 T = TypeVar("T")
@@ -55,6 +56,7 @@ def write_outputs(
     wall_time: float,
     crashes: list[dict[str, Any]],
     domain_id: int | None,
+    resources: dict[str, Any],
 ) -> dict[str, Any]:
     """Write the adversarial bag (attacks only), summary.json and bev.png; return the summary."""
     from advsim_ros.attack.bev import draw_bev
@@ -82,6 +84,7 @@ def write_outputs(
         **analysis,
         "stack_crashes": crashes,
         "wall_time_s": wall_time,
+        "resources": resources,  # this run's processes (empty when the journal was finished before)
         "ros_domain_id": domain_id,
         "outputs": {"journal": str(journal.path), "bev": str(out_dir / "bev.png")},
     }
@@ -149,11 +152,8 @@ def _write_adversarial_bag(
         digest.frame(stamp, codec.encode(odometry[index]), pose)
         digest.sweep(codec.encode(cloud_msg(sweep)))
         sweeps.append(sweep)
-    drivable = drivable_area_for(
-        scenario,
-        section(checked.parameters["scorer"], "drivable", DrivableConfig, "/scorer drivable"),
-        scenario.ego_forward_offset,
-    )
+    drivable_config = section(checked.parameters["scorer"], "drivable", DrivableConfig, "drivable")
+    drivable = bag_drivable_area(checked.bag, scenario, drivable_config, checked.bag_config)  # what the scorer used
     cropped = crop_frames(scenario, frames.start, frames.stop - 1)
     adversarial = Scenario(
         scenario_id=f"{cropped.scenario_id}/adversarial",

@@ -19,7 +19,7 @@ import yaml
 from advsim_ros.core.params import ParamsError, config_from_mapping
 
 ConfigT = TypeVar("ConfigT")
-SHARED_FILES = ("bag.yaml",)  # parameter files every node gets (their entries are under /**)
+SHARED_FILES = ("bag.yaml", "drivable.yaml")  # parameter files every node gets (their entries are under /**)
 
 
 def _merge(into: dict[str, Any], values: Mapping[str, Any]) -> None:

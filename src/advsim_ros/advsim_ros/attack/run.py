@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import secrets
 import time
 from collections.abc import Callable
@@ -25,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from advsim_ros.attack.checks import GRAPH_NODES, Preflight, preflight
+from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackOptions
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
@@ -41,9 +42,10 @@ from advsim_ros.ros.launcher import (
 from advsim_ros.ros.trace import Trace
 
 JOURNAL_NAME = "queries.jsonl"
-_NODE_MODULES = {name: f"advsim_ros.nodes.{name}" for name in GRAPH_NODES}
-_REPLAY_NODES = ("scorer", "scenario_player", "lidar_resim")
-_POLL = 0.1  # [s]
+CONTAINER = "graph_nodes"  # the process of the light nodes (nodes/container.py)
+RESIM = "lidar_resim"  # in a process of its own: it computes while the others wait
+_LIGHT_NODES = ("scenario_player", "scorer", "perturber", "search")
+_REPLAY_LIGHT_NODES = ("scenario_player", "scorer")
 
 
 @dataclass
@@ -133,14 +135,21 @@ def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None
     trace("checked")
     crashes: list[dict[str, Any]] = []
     domain_id = None
+    used: dict[str, dict[str, float]] = {}
     if not journal.finished:
         overrides_file = out_dir / "run" / "overrides.yaml"
         write_text_atomically(overrides_file, yaml.safe_dump(overrides, sort_keys=False))
-        domain_id, crashes = _run_graph(options, checked, overrides_file, journal, progress)
+        domain_id, crashes, used = _run_graph(options, checked, overrides_file, journal, progress)
     from advsim_ros.attack.outputs import write_outputs
 
     trace("graph_done")
-    summary = write_outputs(options, checked, journal, time.monotonic() - started, crashes, domain_id)
+    resources = {
+        "processes": used,
+        "graph_peak_rss_mb": sum(item["peak_rss_mb"] for item in used.values()),
+        "graph_cpu_s": sum(item["cpu_s"] for item in used.values()),
+        "orchestrator_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    }
+    summary = write_outputs(options, checked, journal, time.monotonic() - started, crashes, domain_id, resources)
     trace("outputs_written")
     return AttackResult(out_dir, summary)
 
@@ -151,21 +160,28 @@ def _run_graph(
     overrides_file: Path,
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
-) -> tuple[int, list[dict[str, Any]]]:
+) -> tuple[int, list[dict[str, Any]], dict[str, dict[str, float]]]:
     from advsim_ros.attack.follow import follow
     from advsim_ros.ros.monitor import AttackMonitor  # rclpy only once the graph's environment is set
 
     run_id = secrets.randbelow(2**63 - 1) + 1
     log_dir = options.out_dir.resolve() / "run" / "logs"
-    nodes = _REPLAY_NODES if options.replay_only else GRAPH_NODES
+    light = _REPLAY_LIGHT_NODES if options.replay_only else _LIGHT_NODES
+    container_files = list(dict.fromkeys(path for name in light for path in checked.files[name]))
     specs = [
         NodeSpec(
-            name,
-            python_module_command(_NODE_MODULES[name]),
-            params_files=(*checked.files[name], overrides_file),
+            CONTAINER,
+            python_module_command("advsim_ros.nodes.container", *light),
+            params_files=(*container_files, overrides_file),
             parameters={"run_id": run_id},
-        )
-        for name in nodes
+            rename_node=False,  # each node keeps its own name
+        ),
+        NodeSpec(
+            RESIM,
+            python_module_command("advsim_ros.nodes.lidar_resim"),
+            params_files=(*checked.files[RESIM], overrides_file),
+            parameters={"run_id": run_id},
+        ),
     ]
     stack = NodeSpec(
         options.stack.name,
@@ -186,7 +202,8 @@ def _run_graph(
             for spec in specs:
                 launcher.start(spec)
             crashes = follow(options, checked, launcher, monitor, stack, specs, journal, progress)
-    return lease.domain_id, crashes
+            used = launcher.resources()
+    return lease.domain_id, crashes, used
 
 
 def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryRecord:

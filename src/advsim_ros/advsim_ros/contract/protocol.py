@@ -192,6 +192,25 @@ def episode_from_msg(episode: Any) -> EpisodeRecord:
     )
 
 
+# ----------------------------------------------------------------------------- SearchStatus
+
+
+@dataclass(frozen=True)
+class SearchStatusRecord:
+    queries_asked: int  # perturbations asked for so far (journal replays included)
+    finished: bool  # no further perturbation will come
+
+
+def search_status_msg(status: SearchStatusRecord, run_id: int) -> Any:
+    return message(
+        names.SEARCH_STATUS, run_id=int(run_id), queries_asked=status.queries_asked, finished=status.finished
+    )
+
+
+def search_status_from_msg(status: Any) -> SearchStatusRecord:
+    return SearchStatusRecord(queries_asked=int(status.queries_asked), finished=bool(status.finished))
+
+
 # ----------------------------------------------------------------------------- QueryScore
 
 

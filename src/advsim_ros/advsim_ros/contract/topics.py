@@ -45,6 +45,7 @@ FRAME_REQUEST = TopicSpec("/advsim/frame_request", names.FRAME_REQUEST, qos.STRE
 RENDERED = TopicSpec("/advsim/rendered_points", names.POINTCLOUD2, qos.STREAM)  # lidar_resim's answers, to the player
 EPISODE = TopicSpec("/advsim/episode", names.EPISODE, qos.HISTORY)
 SCORE = TopicSpec("/advsim/score", names.QUERY_SCORE, qos.HISTORY)
+SEARCH_STATUS = TopicSpec("/advsim/search_status", names.SEARCH_STATUS, qos.LATCHED)
 
 # The stack's side of the contract: what `--remap` may name.
 STACK_TOPICS: tuple[TopicSpec, ...] = (
@@ -70,4 +71,5 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     RENDERED,
     EPISODE,
     SCORE,
+    SEARCH_STATUS,
 )

@@ -81,7 +81,7 @@ class LidarResim(ScenarioNode):
             points = query_sweep(self.model, self.scenario, logged, request.world_T_ego, moved, self.config.seed)
             out = Sweep(request.sim_stamp_ns, logged.frame_id, points, logged.sensor_pose)
             self.publish_sweep(cloud_msg(out))
-            self.trace("sweep_sent", request.query_id, request.frame_index)
+            self.trace("rendered", request.query_id, request.frame_index)
 
 
 def main() -> None:

@@ -9,6 +9,7 @@ projected gets an `infeasible` QueryScore straight away, so the search goes on.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,8 @@ class Perturber(ScenarioNode):
                 f"/perturber horizon_steps ({self.config.horizon_steps}) must equal window.history_frames + "
                 f"window.future_frames ({self.window.num_frames})"
             )
-        scenario, _ = self.load_scenario(load_sweeps=True)  # sweeps: drivable area of map-less logs
+        scenario, _ = self.load_scenario(load_sweeps=False)
+        scenario = dataclasses.replace(scenario, drivable_area=self.drivable_area(scenario))
         window = Window(start_frame=self.window.window_start_frame, num_steps=self.window.num_frames)
         self.get_logger().info(f"building feasible sets: {self.config.num_candidates} candidates per actor")
         self.selection = select_actors(scenario, window, self.config, np.random.default_rng(self.config.seed))

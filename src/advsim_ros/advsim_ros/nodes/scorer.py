@@ -17,13 +17,12 @@ from advsim_ros.contract import topics
 from advsim_ros.contract.enums import Outcome, Phase
 from advsim_ros.contract.protocol import EpisodeRecord, episode_from_msg, score_msg
 from advsim_ros.contract.tracks import track_array_from_msg
-from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.objective import ObjectiveConfig, scorer_settings_from_params
 from advsim_ros.core.types import ActorTrack
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros.graph_node import run_node
-from advsim_ros.ros.params import declare_config, declare_parameters
+from advsim_ros.ros.params import declare_parameters
 from advsim_ros.ros.scoring import score_episode
 
 
@@ -36,10 +35,8 @@ class Scorer(ScenarioNode):
             objective["preset"] = preset
         metrics = declare_parameters(self, MetricsConfig, "metrics.")
         self.settings = scorer_settings_from_params({"objective": objective, "metrics": metrics}, "/scorer")
-        drivable_config = declare_config(self, DrivableConfig, "drivable.")
-        # sweeps: logs without a map (or a stored estimate) get their drivable area estimated from the LiDAR ground
-        self.scenario, self.clock = self.load_scenario(load_sweeps=True)
-        self.drivable = drivable_area_for(self.scenario, drivable_config, self.scenario.ego_forward_offset)
+        self.scenario, self.clock = self.load_scenario(load_sweeps=False)
+        self.drivable = self.drivable_area(self.scenario)
         frames = self.window.frame_indices(self.scenario.num_frames)
         self.decision_frame = frames.start + self.window.decision_index
         self.publish_score = self.publisher(topics.SCORE)

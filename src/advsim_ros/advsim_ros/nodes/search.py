@@ -4,7 +4,7 @@ It waits for the perturber's actor selection (which fixes the delta's dimension)
 the search (core.search.driver): the original scenario as query 0, the algorithm's queries,
 then re-runs of the best ones. Queries already in the attack's journal (written by `advsim
 attack` as scores arrive) are replayed into the algorithm instead of recomputed. When the
-search is over the node exits (code 0), which tells the orchestrator nothing more will come.
+search is over it says so on /advsim/search_status (latched): the orchestrator's signal to finish.
 """
 
 from __future__ import annotations
@@ -15,10 +15,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 
 from advsim_ros.contract import topics
-from advsim_ros.contract.protocol import perturbation_msg, score_from_msg, selection_from_msg
+from advsim_ros.contract.protocol import (
+    SearchStatusRecord,
+    perturbation_msg,
+    score_from_msg,
+    search_status_msg,
+    selection_from_msg,
+)
 from advsim_ros.core.journal import read_records
 from advsim_ros.core.search.driver import DriverConfig, drive_search
 from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_type, make_search
@@ -37,6 +42,8 @@ class SearchNode(GraphNode):
             )
         self.algorithm_config = declare_config(self, config_type(self.config.algorithm), f"{self.config.algorithm}.")
         self.publish_perturbation = self.publisher(topics.PERTURBATION)
+        self.publish_status = self.publisher(topics.SEARCH_STATUS)
+        self._asked = 0
         self._condition = threading.Condition()
         self._selection: Any = None
         self._scores: dict[int, float] = {}
@@ -72,6 +79,8 @@ class SearchNode(GraphNode):
     def _evaluate(self, perturbation: Perturbation) -> float:
         """Publish a query and wait for its score: L_adv, or NaN when the query failed or timed out."""
         self.publish_perturbation(perturbation_msg(perturbation, self.run_id))
+        self._asked += 1
+        self.publish_status(search_status_msg(SearchStatusRecord(self._asked, finished=False), self.run_id))
         query_id = perturbation.query_id
         self.trace("perturbation_sent", query_id)
         if not self._wait(lambda: query_id in self._scores, self.config.score_timeout):
@@ -99,7 +108,7 @@ class SearchNode(GraphNode):
         )  # fmt: skip
         if not self._stop.is_set():
             self.get_logger().info("search finished")
-            rclpy.try_shutdown()  # the spin ends and the process exits 0: the orchestrator's signal
+            self.publish_status(search_status_msg(SearchStatusRecord(self._asked, finished=True), self.run_id))
 
 
 def main() -> None:

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
 from rclpy.callback_groups import CallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -102,15 +102,25 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
             )
 
 
-def run_node(factory: Callable[[], Node], *, threads: int = 1) -> None:
+def run_node(factory: Callable[[], Node]) -> None:
     """Create the node and spin it until SIGINT/SIGTERM; a start-up error exits 1 with its message."""
+    run_nodes([factory])
+
+
+def run_nodes(factories: Sequence[Callable[[], Node]]) -> None:
+    """Several nodes in one process (as a ROS 2 component container does), spun by one executor.
+
+    The graph's light nodes share one interpreter this way: one import of numpy, rclpy and the
+    contract, one typestore, instead of one per process. A start-up error exits 1 with its message.
+    """
     rclpy.init()
-    node: Node | None = None
+    nodes: list[Node] = []
     exit_code = 0
     try:
-        node = factory()
-        executor = SingleThreadedExecutor() if threads == 1 else MultiThreadedExecutor(num_threads=threads)
-        executor.add_node(node)
+        nodes.extend(factory() for factory in factories)
+        executor = SingleThreadedExecutor()
+        for node in nodes:
+            executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -118,7 +128,7 @@ def run_node(factory: Callable[[], Node], *, threads: int = 1) -> None:
         print(f"{sys.argv[0]}: error: {error}", file=sys.stderr)
         exit_code = 1
     finally:
-        if node is not None:
+        for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
     if exit_code:

@@ -154,6 +154,7 @@ class Launcher:
         self._log_dir = log_dir
         self._lease = lease
         self._running: list[_Running] = []
+        self._stopped_resources: dict[str, dict[str, float]] = {}
         log_dir.mkdir(parents=True, exist_ok=True)
         # The reaper first: from now on nothing this launcher starts can outlive the orchestrator.
         with open(log_dir / "reaper.log", "ab") as reaper_log:
@@ -197,11 +198,28 @@ class Launcher:
     def log_path(self, name: str) -> Path:
         return self._log_dir / f"{name}.log"
 
+    def resources(self) -> dict[str, dict[str, float]]:
+        """Peak resident memory [MB] and CPU time [s] of every process (running ones so far, from /proc)."""
+        used = dict(self._stopped_resources)
+        for running in self._running:
+            try:
+                status = Path(f"/proc/{running.process.pid}/status").read_text()
+                fields = Path(f"/proc/{running.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            peak_kb = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
+            ticks = int(fields[11]) + int(fields[12])  # utime + stime
+            used[running.spec.name] = {"peak_rss_mb": peak_kb / 1024.0, "cpu_s": ticks / os.sysconf("SC_CLK_TCK")}
+        return used
+
     def exited(self) -> dict[str, int]:
         """Processes that have already exited, with their return codes."""
         return {r.spec.name: code for r in self._running if (code := r.process.poll()) is not None}
 
     def stop(self, name: str, timeout: float = 5.0) -> int | None:
+        used = self.resources().get(name)
+        if used is not None:
+            self._stopped_resources[name] = used
         for running in list(self._running):
             if running.spec.name == name:
                 self._running.remove(running)

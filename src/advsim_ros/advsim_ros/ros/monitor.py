@@ -29,6 +29,7 @@ from advsim_ros.contract.protocol import (
     perturbation_from_msg,
     perturbation_msg,
     score_from_msg,
+    search_status_from_msg,
     selection_from_msg,
 )
 from advsim_ros.contract.tracks import track_array_from_msg, track_array_msg
@@ -81,6 +82,7 @@ class AttackMonitor:
         self.skip = skip  # queries already journaled (a resumed attack): never handed out again
         self.selection: SelectionRecord | None = None
         self.progress = Progress()
+        self.search_finished = False
         self._pending: dict[int, _Pending] = {}
 
     def __enter__(self) -> AttackMonitor:
@@ -93,6 +95,7 @@ class AttackMonitor:
         self.node.subscribe(topics.ACTOR_SELECTION, self._on_selection)
         self.node.subscribe(topics.EPISODE, self._on_episode)
         self.node.subscribe(topics.PERTURBED_TRACKS, self._on_tracks)
+        self.node.subscribe(topics.SEARCH_STATUS, self._on_search_status)
         return self
 
     def __exit__(self, *exc_info: object) -> None:
@@ -129,6 +132,9 @@ class AttackMonitor:
         self.progress.frame = episode.frame_index
         if episode.phase == Phase.DONE:
             self._entry(episode.query_id).episode = episode
+
+    def _on_search_status(self, message: Any) -> None:
+        self.search_finished = search_status_from_msg(message).finished
 
     def _on_tracks(self, message: Any) -> None:
         record = track_array_from_msg(message)
