@@ -1,11 +1,20 @@
-"""Benchmark of the attack graph on a 6 s KITTI tracking 0000 window (real node processes over DDS).
+"""Benchmark of whole attacks on a 6 s KITTI tracking 0000 window (real node processes over DDS).
 
-1. framework overhead per query: an attack with the example stack (a constant-velocity planner
-   whose own compute is a few milliseconds per sweep), random search; the median wall time of a
-   query (perturb, replay 10 frames with re-simulation, plan, score) is the graph's overhead;
-2. a full attack: BO with 75 queries against the reference (modular) stack, end to end.
+Each run is `advsim attack` as a user runs it (a process of its own), timed from outside, with the
+graph's timeline traced (ADVSIM_TRACE_DIR) for a per-query breakdown:
 
-Usage: python bench/bench_attack.py [--queries 10] [--bo-queries 75] [--skip-full]
+1. ``overhead``: the example stack (a constant-velocity planner, a few ms per sweep) with random
+   search: the median query is the framework's own cost (perturb, 10 frames with re-simulation,
+   plan, score);
+2. ``full``: BO with the paper's 75 queries against the reference (modular) stack, end to end, with
+   cold caches (re-simulation model and drivable area built) and again warm: wall time, time to the
+   first finished query, per-query breakdown, peak memory and CPU per process.
+
+``--baseline DIR`` runs the same full attack with another checkout's `advsim` (its own .venv, e.g.
+the previous main in a git worktree) alternately with this one, so the machine's drift cancels,
+and reports the ratio of the medians.
+
+Usage: python bench/bench_attack.py [--queries 75] [--overhead-queries 10] [--repeats 1] [--baseline DIR]
 Prints one JSON object. Needs ../shared/data/kitti_tracking_0000.
 """
 
@@ -13,83 +22,113 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
-from advsim_ros.attack import AttackOptions, StackSpec, run_attack
-from advsim_ros.core.curation import CurationConfig, crop_scenario, evaluate_window
+from advsim_ros.core.curation import crop_frames
 from advsim_ros.io.bag import write_scenario_bag
-from advsim_ros.io.cache import cache_root
+from advsim_ros.io.cache import CACHE_ENV, cache_root
 from advsim_ros.io.kitti import load_kitti_tracking
-from advsim_ros.ros.launcher import python_module_command
+from advsim_ros.ros.trace import TRACE_ENV, query_breakdown, read_trace
 
-KITTI = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "kitti_tracking_0000"
+REPO = Path(__file__).resolve().parents[1]
+KITTI = REPO / ".." / "shared" / "data" / "kitti_tracking_0000"
 
 
-def window_bag(start_frame: int) -> Path:
-    """KITTI 0000 frames start..start+59 as a scenario bag, cached."""
-    path = cache_root() / "bench" / f"kitti_0000_window_{start_frame}"
+def window_bag() -> Path:
+    """KITTI 0000 frames 0..59 as a scenario bag, cached."""
+    path = cache_root() / "bench" / "kitti_0000_window_0_v2"
     if not (path / "metadata.yaml").exists():
-        scenario = load_kitti_tracking(KITTI.resolve(), "0000")
-        window = crop_scenario(scenario, evaluate_window(scenario, start_frame, CurationConfig()))
+        window = crop_frames(load_kitti_tracking(KITTI.resolve(), "0000"), 0, 59)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_scenario_bag(window, path, source="kitti_tracking/0000", overwrite=True)
     return path
 
 
+def attack(
+    checkout: Path, bag: Path, out: Path, stack: str, algorithm: str, queries: int, env: dict[str, str]
+) -> float:
+    """Wall seconds of one `advsim attack` run with a checkout's own environment."""
+    command = [
+        str(checkout / ".venv" / "bin" / "advsim"), "attack", str(bag), "--stack", stack, "--algo", algorithm,
+        "--queries", str(queries), "--window-start", "0", "-o", str(out),
+    ]  # fmt: skip
+    started = time.monotonic()
+    result = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    wall = time.monotonic() - started
+    if result.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{result.stderr[-2000:]}")
+    return wall
+
+
+def traced(
+    bag: Path, scratch: Path, name: str, stack: str, algorithm: str, queries: int, cache: Path
+) -> dict[str, Any]:
+    """One run of this checkout, with its trace turned into figures."""
+    trace_dir = scratch / f"{name}-trace"
+    env = {**os.environ, TRACE_ENV: str(trace_dir), CACHE_ENV: str(cache)}
+    wall = attack(REPO, bag, scratch / name, stack, algorithm, queries, env)
+    events = read_trace(trace_dir)
+    start = next(stamp for stamp, _, event, _, _ in events if event == "checked")
+    first = next(stamp for stamp, _, event, _, _ in events if event == "journaled")
+    stages = query_breakdown(events)
+    searched = [stages[q] for q in sorted(stages) if q > 0]
+    summary = json.loads((scratch / name / "summary.json").read_text())
+    return {
+        "wall_s": wall,
+        "first_query_finished_s": first - start,
+        "median_query_s": statistics.median(item["total"] for item in searched),
+        "max_query_s": max(item["total"] for item in searched),
+        "median_per_stage_s": {key: statistics.median(item[key] for item in searched) for key in searched[0]},
+        "resources": summary["resources"],
+        "original_adversarial_loss": (summary["original"] or {}).get("adversarial_loss"),
+        "best_adversarial_loss": ((summary["best"] or {}).get("score") or {}).get("adversarial_loss"),
+        "failed_queries": summary["failed_queries"],
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--queries", type=int, default=10, help="queries of the overhead run")
-    parser.add_argument("--bo-queries", type=int, default=75, help="queries of the full BO attack")
-    parser.add_argument("--skip-full", action="store_true", help="only the overhead run")
+    parser.add_argument("--queries", type=int, default=75, help="queries of the full BO attack")
+    parser.add_argument("--overhead-queries", type=int, default=10, help="queries of the overhead run")
+    parser.add_argument(
+        "--repeats", type=int, default=1, help="warm full attacks (and baseline ones) to take medians of"
+    )
+    parser.add_argument("--baseline", type=Path, default=None, help="another checkout with its .venv, run alternately")
     args = parser.parse_args()
     if not KITTI.is_dir():
         print(json.dumps({"error": f"KITTI tracking 0000 not found at {KITTI.resolve()}"}))
         return 1
-    bag = window_bag(0)
-    figures: dict[str, object] = {"scenario": "KITTI tracking 0000, frames 0..59"}
-    with tempfile.TemporaryDirectory() as scratch:
-        example = StackSpec("example_stack", python_module_command("advsim_ros.stacks.example"))
-        started = time.monotonic()
-        overhead = run_attack(
-            AttackOptions(
-                bag=bag,
-                out_dir=Path(scratch) / "overhead",
-                stack=example,
-                algorithm="random",
-                queries=args.queries,
-                window_start_frame=0,
-            )
-        ).summary
-        walls = [q["score"]["wall_time"] for q in overhead["queries"] if q["query_id"] > 0 and q["score"]["wall_time"]]
-        figures["overhead"] = {
-            "queries": len(walls),
-            "median_query_s": statistics.median(walls),
-            "max_query_s": max(walls),
-            "run_wall_s": time.monotonic() - started,
-            "note": "includes the example stack's own compute (a few ms per sweep)",
-        }
-        if not args.skip_full:
-            started = time.monotonic()
-            full = run_attack(
-                AttackOptions(
-                    bag=bag,
-                    out_dir=Path(scratch) / "full",
-                    stack=StackSpec.reference(),
-                    algorithm="bo",
-                    queries=args.bo_queries,
-                    window_start_frame=0,
+    bag = window_bag()
+    figures: dict[str, Any] = {"scenario": "KITTI tracking 0000, frames 0..59", "cores": os.cpu_count()}
+    with tempfile.TemporaryDirectory() as folder:
+        scratch = Path(folder)
+        cache = scratch / "cache"
+        figures["full_cold"] = traced(bag, scratch, "cold", "reference", "bo", args.queries, cache)
+        figures["overhead"] = traced(bag, scratch, "overhead", "python -m advsim_ros.stacks.example", "random",
+                                     args.overhead_queries, cache)  # fmt: skip
+        warm, baseline = [], []
+        for repeat in range(args.repeats):
+            warm.append(traced(bag, scratch, f"warm{repeat}", "reference", "bo", args.queries, cache))
+            if args.baseline is not None:
+                env = {key: value for key, value in os.environ.items() if key != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+                baseline.append(
+                    attack(args.baseline, bag, scratch / f"base{repeat}", "reference", "bo", args.queries, env)
                 )
-            ).summary
-            figures["bo_attack_reference_stack"] = {
-                "queries": args.bo_queries,
-                "wall_s": time.monotonic() - started,
-                "original_adversarial_loss": (full["original"] or {}).get("adversarial_loss"),
-                "best_adversarial_loss": ((full["best"] or {}).get("score") or {}).get("adversarial_loss"),
-                "failed_queries": full["failed_queries"],
+        figures["full_warm"] = warm[0] if len(warm) == 1 else {"runs": warm}
+        figures["full_warm_median_wall_s"] = statistics.median(run["wall_s"] for run in warm)
+        if baseline:
+            figures["baseline"] = {
+                "checkout": str(args.baseline.resolve()),
+                "wall_s": baseline,
+                "median_wall_s": statistics.median(baseline),
+                "ratio_this_to_baseline": figures["full_warm_median_wall_s"] / statistics.median(baseline),
             }
     json.dump(figures, sys.stdout, indent=2)
     print()
