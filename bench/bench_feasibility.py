@@ -29,7 +29,6 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.core.drivable import drivable_area_for
-from advsim_ros.core.types import DrivableArea
 from advsim_ros.core.feasibility import (
     FeasibleSet,
     InfeasibleError,
@@ -41,7 +40,7 @@ from advsim_ros.core.feasibility import (
     select_actors,
     window_obstacles,
 )
-from advsim_ros.core.types import ActorTrack, EgoTrajectory, RoadMap, Scenario
+from advsim_ros.core.types import ActorTrack, DrivableArea, EgoTrajectory, RoadMap, Scenario
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO / "../shared/data"
