@@ -5,15 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from advsim_ros.core.lidar.sensor import (
-    RangeImage,
-    SensorEstimationError,
-    estimate_sensor_model,
-    point_normals,
-    scan_order_segments,
-    spherical,
-    xyz_of,
-)
+from advsim_ros.core.lidar.sensor import RangeImage, point_normals, scan_order_segments, spherical, xyz_of
+from advsim_ros.core.lidar.sensor_estimation import SensorEstimationError, estimate_sensor_model
 from advsim_ros.core.types import Scenario, Sweep
 from advsim_ros.io.synthetic import SyntheticLog
 

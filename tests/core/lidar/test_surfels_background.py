@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from advsim_ros.core.digest import Digest
 from advsim_ros.core.lidar.background import SweepDepth, build_background, carve_moving
-from advsim_ros.core.lidar.cache import Digest, load_arrays, save_arrays
+from advsim_ros.core.lidar.cache import load_arrays, save_arrays
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.raycast import SurfaceCaster
 from advsim_ros.core.lidar.sensor import BeamRows, azimuth_columns, spherical

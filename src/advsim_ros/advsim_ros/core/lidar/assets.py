@@ -12,13 +12,18 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.raycast import Surface, cuboid_surface
 from advsim_ros.core.lidar.surfels import PointSamples, SurfelCloud, surfels_from_samples
-from advsim_ros.core.types import ActorClass, FloatArray, ScenarioError
+from advsim_ros.core.types import ActorClass, FloatArray, Scenario, ScenarioError
+
+if TYPE_CHECKING:
+    from advsim_ros.core.lidar.log_points import LogPoints
 
 ICP_ITERATIONS = 10
 ICP_MIN_MATCHES = 30  # frames with fewer points (or matches) are not aligned
@@ -209,3 +214,31 @@ def build_asset(
         drop_probability=0.0,
         num_points=count,
     )
+
+
+def build_assets(scenario: Scenario, log_points: LogPoints, config: ResimConfig) -> dict[str, ActorAsset]:
+    """One asset per track: observed where it has enough points, the class template otherwise."""
+    every = np.concatenate([values for values in log_points.actor_intensity.values()] + [np.zeros(0)])
+    fallback = float(np.median(every)) if every.size else float(np.median(log_points.background.intensity))
+    by_class: dict[ActorClass, list[FloatArray]] = {}
+    for actor in scenario.actors:
+        by_class.setdefault(actor.actor_class, []).append(log_points.actor_intensity[actor.actor_id])
+    class_intensity = {
+        actor_class: float(np.median(np.concatenate(values))) if sum(v.size for v in values) else fallback
+        for actor_class, values in by_class.items()
+    }
+    assets: dict[str, ActorAsset] = {}
+    for actor in scenario.actors:
+        assets[actor.actor_id] = build_asset(
+            actor.actor_id,
+            actor.actor_class,
+            actor.size,
+            log_points.actors[actor.actor_id],
+            mirror=actor.actor_class.value in config.mirror_classes,
+            voxel_size=config.asset_voxel,
+            size_scale=config.surfel_size_scale,
+            max_half_size=config.asset_max_half_size,
+            min_points=config.asset_min_points,
+            template_intensity=class_intensity[actor.actor_class],
+        )
+    return assets

@@ -1,7 +1,7 @@
 """The static scene of a log: surfels of every sweep with the actors cut out, and a ground grid.
 
 Built once per log from its own sweeps (aggregated in the world frame, see
-``resim.collect_log_points``): the ground under actors that never moved (parked cars)
+``log_points.collect_log_points``): the ground under actors that never moved (parked cars)
 was never seen, so every ground cell near seen ground gets a flat surfel at its ground
 height (the height of the nearest seen ground where unseen). The ground grid also gives the
 ground height under a moved actor.

@@ -1,13 +1,12 @@
 """On-disk cache of built models: arrays in one .npz per key, written atomically.
 
-The key is a hash of everything the model depends on (see ``Digest``), so a changed log
+The key is a hash of everything the model depends on (see ``core.digest.Digest``), so a changed log
 or configuration builds anew instead of reading a stale file; files are written to a
 temporary name in the same folder and renamed, so a crash never leaves a partial file.
 """
 
 from __future__ import annotations
 
-import hashlib
 import os
 import tempfile
 import zipfile
@@ -15,27 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
-
-
-class Digest:
-    """An incremental BLAKE2b hash over strings, numbers and arrays (shape and dtype included)."""
-
-    def __init__(self, purpose: str) -> None:
-        self._hash = hashlib.blake2b(digest_size=16)
-        self.text(purpose)
-
-    def text(self, value: str) -> None:
-        encoded = value.encode()
-        self._hash.update(len(encoded).to_bytes(8, "little") + encoded)
-
-    def array(self, value: npt.ArrayLike) -> None:
-        array = np.ascontiguousarray(value)
-        self.text(f"{array.dtype.str}{array.shape}")
-        self._hash.update(array.data.cast("B"))
-
-    def hexdigest(self) -> str:
-        return self._hash.hexdigest()
 
 
 def load_arrays(path: Path) -> dict[str, np.ndarray] | None:
