@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from advsim_ros.core.drivable import drivable_area_for
+from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.feasibility import (
     FeasibleSet,
     InfeasibleError,
@@ -139,7 +139,7 @@ def _time_projection(sets: list[FeasibleSet], queries: int) -> dict[str, Any]:
 
 
 def _selection_report(scenario: Scenario, starts: list[int], config: PerturberConfig) -> list[dict[str, Any]]:
-    drivable = drivable_area_for(scenario, config.drivable, config.ego_forward_offset)
+    drivable = drivable_area_for(scenario, DrivableConfig())
     rows = []
     for start in starts:
         window = Window(start, config.horizon_steps)
@@ -189,7 +189,7 @@ def main() -> None:
         "build": [],
     }
     street = generated_street()
-    street_area = drivable_area_for(street, config.drivable, config.ego_forward_offset)
+    street_area = drivable_area_for(street, DrivableConfig())
     window = Window(0, config.horizon_steps)
     for actor_id in ("car0", "parked2"):
         figures["build"].append(_time_builds(street, window, actor_id, config, street_area, args.repeat))
@@ -207,7 +207,7 @@ def main() -> None:
 
         kitti = load_kitti_tracking(SHARED_DATA / "kitti_tracking_0000", "0000")
         started = time.perf_counter()
-        kitti_area = drivable_area_for(kitti, config.drivable, config.ego_forward_offset)
+        kitti_area = drivable_area_for(kitti, DrivableConfig())
         figures["kitti_drivable_estimate_s"] = round(time.perf_counter() - started, 2)
         for actor_id in ("0", "5"):  # a moving van and a parked car, against 14 other actors and the SDV
             figures["build"].append(

@@ -38,7 +38,7 @@ from advsim_ros.core.feasibility import (
     select_actors,
 )
 from advsim_ros.core.params import ParamsError
-from advsim_ros.core.types import ActorTrack, DrivableArea, EgoTrajectory, RoadMap, Scenario, ScenarioError
+from advsim_ros.core.types import ActorTrack, DrivableArea, EgoGeometry, EgoTrajectory, RoadMap, Scenario, ScenarioError
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -89,7 +89,7 @@ def street_scenario(with_map: bool = True) -> Scenario:
         ego=EgoTrajectory(STAMPS, poses),
         actors=actors,
         road_map=road_map,
-        ego_size=np.array([4.5, 1.9, 1.6]),
+        ego_geometry=EgoGeometry(np.array([4.5, 1.9, 1.6])),
     )
 
 
@@ -122,7 +122,7 @@ def _labelled_obstacles(
         pose = scenario.ego.poses[frame]
         yaw = math.atan2(pose[1, 0], pose[0, 0])
         x, y = pose[0, 3] + ego_offset * math.cos(yaw), pose[1, 3] + ego_offset * math.sin(yaw)
-        polygons = [_polygon(x, y, yaw, scenario.ego_size[0], scenario.ego_size[1])]
+        polygons = [_polygon(x, y, yaw, scenario.ego_geometry.length, scenario.ego_geometry.width)]
         for actor in scenario.actors:
             if actor.actor_id == actor_id:
                 continue
@@ -207,7 +207,7 @@ def test_pruning_counts_shrink_step_by_step_and_keep_enough_candidates(lead_set:
 def test_every_feasible_candidate_respects_the_bounds_the_road_and_every_obstacle(
     street: Scenario, lead_set: FeasibleSet
 ) -> None:
-    obstacles = _labelled_obstacles(street, Window(0, 60), "lead", TEST_CONFIG.ego_forward_offset)
+    obstacles = _labelled_obstacles(street, Window(0, 60), "lead", street.ego_geometry.forward_offset)
     road = shapely.Polygon(ROAD)
     rng = np.random.default_rng(0)
     for candidate in rng.choice(lead_set.size, size=60, replace=False):
@@ -226,7 +226,7 @@ def test_pruned_candidates_really_break_a_rule(street: Scenario, lead_set: Feasi
     kept_rows = {row.tobytes() for row in kept.deltas}
     removed = [row for row in sampled if row.tobytes() not in kept_rows]
     assert len(removed) == 3000 - kept.size
-    obstacles = _labelled_obstacles(street, Window(0, 60), "lead", config.ego_forward_offset)
+    obstacles = _labelled_obstacles(street, Window(0, 60), "lead", street.ego_geometry.forward_offset)
     # Tolerances of the pruning: raster cells of the road, the collision margin, float32 slack.
     inner_road = shapely.Polygon(ROAD).buffer(-0.36)
     grown = [[polygon.buffer(config.collision_margin * 1.5) for polygon in step] for step in obstacles]
@@ -282,7 +282,7 @@ def test_projecting_a_feasible_candidate_returns_that_candidate(lead_set: Feasib
 def test_projection_returns_the_l2_nearest_feasible_candidate_deterministically(
     street: Scenario, lead_set: FeasibleSet
 ) -> None:
-    obstacles = _labelled_obstacles(street, Window(0, 60), "lead", TEST_CONFIG.ego_forward_offset)
+    obstacles = _labelled_obstacles(street, Window(0, 60), "lead", street.ego_geometry.forward_offset)
     rng = np.random.default_rng(2)
     origin = lead_set.reference.origin
     for _ in range(15):
@@ -324,7 +324,7 @@ def test_actors_are_ranked_by_their_smallest_gap_to_the_sdv(street: Scenario) ->
     gaps = dict(ranked)
     assert [gap for _, gap in ranked] == sorted(gaps.values())
     assert set(gaps) == {"lead", "oncoming", "parked", "walker"}
-    offset = TEST_CONFIG.ego_forward_offset
+    offset = street.ego_geometry.forward_offset
     for actor_id in ("lead", "oncoming", "walker"):  # labelled at every window frame
         actor = street.actor(actor_id)
         ego = [polygons[0] for polygons in _labelled_obstacles(street, window, actor_id, offset)]
@@ -358,7 +358,7 @@ def test_joint_projection_keeps_the_perturbed_actors_apart(street: Scenario) -> 
             assert_physically_plausible(trajectory, config)
             assert_on_road(trajectory, road)
             assert_collides_with_nothing(
-                trajectory, _labelled_obstacles(street, window, trajectory.actor_id, config.ego_forward_offset)
+                trajectory, _labelled_obstacles(street, window, trajectory.actor_id, street.ego_geometry.forward_offset)
             )
         for step in range(window.num_steps):
             a = _polygon(first.x[step], first.y[step], first.yaw[step], first.size[0], first.size[1])
@@ -413,7 +413,7 @@ def test_map_raster_agrees_with_the_polygon(street: Scenario) -> None:
 def test_without_a_map_the_drivable_area_covers_where_vehicles_drove_but_not_the_pedestrian() -> None:
     scenario = street_scenario(with_map=False)
     config = DrivableConfig()
-    area = estimate_drivable_area(scenario, config, 1.0, scenario_extent(scenario, 20.0))
+    area = estimate_drivable_area(scenario, config, scenario_extent(scenario, 20.0))
     assert area.source == "log estimate"
     ego_box_centres = scenario.ego.xy + np.array([1.0, 0.0])
     assert np.all(area.contains(ego_box_centres[:, 0], ego_box_centres[:, 1]))
@@ -424,7 +424,7 @@ def test_without_a_map_the_drivable_area_covers_where_vehicles_drove_but_not_the
 
 
 def test_drivable_area_for_uses_the_map_when_there_is_one(street: Scenario) -> None:
-    area = drivable_area_for(street, dataclasses.replace(DrivableConfig(), reach=5.0), 1.0)
+    area = drivable_area_for(street, dataclasses.replace(DrivableConfig(), reach=5.0))
     assert area.source == "map"
     with pytest.raises(ScenarioError, match="resolution"):
         DrivableArea(np.zeros(2), 0.0, np.ones((2, 2), dtype=bool), "map")
@@ -434,13 +434,13 @@ def test_drivable_area_for_uses_the_map_when_there_is_one(street: Scenario) -> N
 
 
 def _check_selection_on_real_log(scenario: Scenario, window: Window, config: PerturberConfig) -> None:
-    drivable = drivable_area_for(scenario, config.drivable, config.ego_forward_offset)
+    drivable = drivable_area_for(scenario, DrivableConfig())
     selection = select_actors(scenario, window, config, np.random.default_rng(0), drivable=drivable)
     assert len(selection.actor_ids) == config.num_actors
     rng = np.random.default_rng(1)
     for feasible in selection.sets:
         assert feasible.size >= config.min_feasible
-        obstacles = _labelled_obstacles(scenario, window, feasible.actor_id, config.ego_forward_offset)
+        obstacles = _labelled_obstacles(scenario, window, feasible.actor_id, scenario.ego_geometry.forward_offset)
         for candidate in rng.choice(feasible.size, size=min(15, feasible.size), replace=False):
             trajectory = feasible.trajectory(int(candidate))
             assert_physically_plausible(trajectory, config)
@@ -450,10 +450,19 @@ def _check_selection_on_real_log(scenario: Scenario, window: Window, config: Per
         assert_physically_plausible(trajectory, config)
 
 
+@pytest.fixture(scope="module")
+def kitti_with_drivable(kitti_scenario: Scenario) -> Scenario:
+    """KITTI 0000 with its drivable area estimated once (from 8 sweeps: a test need not take the default 20)."""
+    area = drivable_area_for(kitti_scenario, dataclasses.replace(DrivableConfig(), max_sweeps=8))
+    return dataclasses.replace(kitti_scenario, drivable_area=area)
+
+
 @pytest.mark.parametrize("start", [0, 40, 90])
-def test_kitti_windows_have_perturbable_actors_with_valid_feasible_sets(kitti_scenario: Scenario, start: int) -> None:
-    config = dataclasses.replace(TEST_CONFIG, num_candidates=50_000, drivable_max_sweeps=8)
-    _check_selection_on_real_log(kitti_scenario, Window(start, 60), config)
+def test_kitti_windows_have_perturbable_actors_with_valid_feasible_sets(
+    kitti_with_drivable: Scenario, start: int
+) -> None:
+    config = dataclasses.replace(TEST_CONFIG, num_candidates=50_000)
+    _check_selection_on_real_log(kitti_with_drivable, Window(start, 60), config)
 
 
 def test_argoverse2_logs_have_perturbable_actors_with_valid_feasible_sets(av2_logs: list[Path]) -> None:

@@ -17,13 +17,13 @@ from advsim_ros.core.metrics import (
     query_metrics,
     trajectory_kinematics,
 )
-from advsim_ros.core.types import ActorClass, ActorTrack, EgoTrajectory, Plan, ScenarioError
+from advsim_ros.core.types import ActorClass, ActorTrack, EgoGeometry, EgoTrajectory, Plan, ScenarioError
 
 DT = 0.1  # [s]
 STEPS = 50  # 5 s plan at 10 Hz
 START_NS = 1_000_000_000_000
-EGO_SIZE = np.array([4.5, 1.9, 1.7])  # [m]
-CONFIG = MetricsConfig()  # ego box centre 1 m ahead of the ego origin
+EGO = EgoGeometry(np.array([4.5, 1.9, 1.7]), forward_offset=1.0)  # the SDV's box, 1 m ahead of its origin
+CONFIG = MetricsConfig()
 
 
 def _stamps(count: int = STEPS) -> np.ndarray:
@@ -57,7 +57,7 @@ def _parked(x: float, y: float, yaw: float = 0.0, size: tuple[float, float] = (4
 def test_sdv_driving_into_a_parked_car_collides_at_the_first_stamp_its_box_touches() -> None:
     # Ego box front = origin + 1.0 + 2.25; the car's rear is at 30 - 2 = 28 m: contact from t = 2.475 s.
     plan = _plan(_straight(10.0))
-    metrics = query_metrics(plan, _human(_straight(10.0)), _parked(30.0, 0.0), EGO_SIZE, CONFIG)
+    metrics = query_metrics(plan, _human(_straight(10.0)), _parked(30.0, 0.0), EGO, CONFIG)
     assert metrics.first_collision_time == pytest.approx(2.5)
     assert metrics.at("collision", 3.0) == 1.0
     assert metrics.at("collision", 5.0) == 1.0
@@ -65,14 +65,14 @@ def test_sdv_driving_into_a_parked_car_collides_at_the_first_stamp_its_box_touch
 
 def test_a_collision_after_3_s_counts_at_5_s_only() -> None:
     plan = _plan(_straight(10.0))
-    metrics = query_metrics(plan, _human(_straight(10.0)), _parked(45.0, 0.0), EGO_SIZE, CONFIG)  # contact from 3.975 s
+    metrics = query_metrics(plan, _human(_straight(10.0)), _parked(45.0, 0.0), EGO, CONFIG)  # contact from 3.975 s
     assert metrics.first_collision_time == pytest.approx(4.0)
     np.testing.assert_array_equal(metrics.collision, [0.0, 1.0])
 
 
 def test_a_car_in_the_next_lane_never_collides() -> None:
     plan = _plan(_straight(10.0))
-    metrics = query_metrics(plan, _human(_straight(10.0)), _parked(30.0, 3.5), EGO_SIZE, CONFIG)
+    metrics = query_metrics(plan, _human(_straight(10.0)), _parked(30.0, 3.5), EGO, CONFIG)
     assert np.isnan(metrics.first_collision_time)
     np.testing.assert_array_equal(metrics.collision, [0.0, 0.0])
 
@@ -83,20 +83,20 @@ def test_actors_outside_the_evaluation_range_at_the_decision_do_not_count() -> N
     states = np.stack([np.full(STEPS, 20.0), 45.0 - 25.0 * times, np.full(STEPS, -np.pi / 2)], axis=-1)[None]
     actors = ActorFutures(states, np.array([[4.0, 2.0]]))
     plan, human = _plan(_straight(10.0)), _human(_straight(10.0))
-    assert query_metrics(plan, human, actors, EGO_SIZE, CONFIG).at("collision", 5.0) == 0.0
+    assert query_metrics(plan, human, actors, EGO, CONFIG).at("collision", 5.0) == 0.0
     wide = MetricsConfig(y_range=(-50.0, 50.0))
-    assert query_metrics(plan, human, actors, EGO_SIZE, wide).at("collision", 5.0) == 1.0
+    assert query_metrics(plan, human, actors, EGO, wide).at("collision", 5.0) == 1.0
 
 
 def test_l2_to_human_is_the_gap_between_a_slower_plan_and_the_human_at_each_horizon() -> None:
-    metrics = query_metrics(_plan(_straight(8.0)), _human(_straight(10.0)), _parked(0.0, 30.0), EGO_SIZE, CONFIG)
+    metrics = query_metrics(_plan(_straight(8.0)), _human(_straight(10.0)), _parked(0.0, 30.0), EGO, CONFIG)
     # At 3 s: 30 - 24 = 6 m; at 5 s the 10 Hz plan ends at 4.9 s, so 5 s is not covered.
     assert metrics.at("l2_human", 3.0) == pytest.approx(6.0)
     assert np.isnan(metrics.at("l2_human", 5.0))
     longer = np.arange(51) * DT
     plan = Plan(_stamps(51), np.stack([8.0 * longer, np.zeros(51)], -1), np.zeros(51))
     human = _human(np.stack([10.0 * longer, np.full(51, 1.5)], -1))
-    metrics = query_metrics(plan, human, ActorFutures(np.zeros((0, 51, 3)), np.zeros((0, 2))), EGO_SIZE, CONFIG)
+    metrics = query_metrics(plan, human, ActorFutures(np.zeros((0, 51, 3)), np.zeros((0, 2))), EGO, CONFIG)
     assert metrics.at("l2_human", 5.0) == pytest.approx(np.hypot(10.0, 1.5))
 
 
@@ -107,7 +107,7 @@ def test_constant_jerk_is_recovered_exactly_from_a_cubic_position_profile() -> N
     np.testing.assert_allclose(kinematics.jerk, 1.5, atol=1e-6)
     np.testing.assert_allclose(kinematics.longitudinal_acceleration, 1.5 * times[1:-1], atol=1e-9)
     np.testing.assert_allclose(kinematics.lateral_acceleration, 0.0, atol=1e-12)
-    metrics = query_metrics(_plan(xy), _human(xy), _parked(0.0, 30.0), EGO_SIZE, CONFIG)
+    metrics = query_metrics(_plan(xy), _human(xy), _parked(0.0, 30.0), EGO, CONFIG)
     assert metrics.jerk == pytest.approx(1.5, abs=1e-6)
 
 
@@ -118,7 +118,7 @@ def test_lateral_acceleration_on_a_circle_is_speed_squared_over_radius() -> None
     kinematics = trajectory_kinematics(np.arange(STEPS) * DT, xy, angle)
     np.testing.assert_allclose(kinematics.lateral_acceleration, 5.0, rtol=1e-3)
     np.testing.assert_allclose(kinematics.jerk, 0.0, atol=1e-9)
-    metrics = query_metrics(_plan(xy, angle), _human(xy, angle), _parked(0.0, -30.0), EGO_SIZE, CONFIG)
+    metrics = query_metrics(_plan(xy, angle), _human(xy, angle), _parked(0.0, -30.0), EGO, CONFIG)
     assert metrics.lateral_acceleration == pytest.approx(5.0, rel=1e-3)
 
 
@@ -156,7 +156,7 @@ def test_prediction_l2_compares_each_matched_prediction_with_its_actor_at_3_and_
     )
     predictions = Predictions(_stamps(count), predicted)
     human = _human(np.stack([10.0 * times, np.zeros(count)], -1))
-    metrics = query_metrics(plan, human, actors, EGO_SIZE, CONFIG, predictions=predictions)
+    metrics = query_metrics(plan, human, actors, EGO, CONFIG, predictions=predictions)
     np.testing.assert_allclose(metrics.prediction_l2, [1.5, 2.5])
 
 
@@ -165,9 +165,9 @@ def test_aggregation_averages_rates_and_pools_detections() -> None:
     truth = np.array([[10.0, 0.0, 0.0, 4.0, 2.0]])
     hit = match_detections(truth, [0.9], truth, np.zeros(2), 0.0, CONFIG)
     miss = match_detections(np.zeros((0, 5)), np.zeros(0), truth, np.zeros(2), 0.0, CONFIG)
-    colliding = query_metrics(plan, human, _parked(30.0, 0.0), EGO_SIZE, CONFIG, detection=hit)
-    late = query_metrics(plan, human, _parked(45.0, 0.0), EGO_SIZE, CONFIG, detection=miss)
-    clear = query_metrics(plan, human, _parked(30.0, 3.5), EGO_SIZE, CONFIG)
+    colliding = query_metrics(plan, human, _parked(30.0, 0.0), EGO, CONFIG, detection=hit)
+    late = query_metrics(plan, human, _parked(45.0, 0.0), EGO, CONFIG, detection=miss)
+    clear = query_metrics(plan, human, _parked(30.0, 3.5), EGO, CONFIG)
     summary = aggregate_metrics([colliding, late, clear])
     assert summary.count == 3
     np.testing.assert_allclose(summary.collision_rate, [1.0 / 3.0, 2.0 / 3.0])
@@ -180,7 +180,7 @@ def test_aggregation_averages_rates_and_pools_detections() -> None:
 def test_actor_futures_must_be_sampled_at_the_plan_stamps() -> None:
     actors = ActorFutures(np.zeros((1, STEPS - 1, 3)), np.array([[4.0, 2.0]]))
     with pytest.raises(ScenarioError, match="sample the futures at the plan's stamps"):
-        query_metrics(_plan(_straight(10.0)), _human(_straight(10.0)), actors, EGO_SIZE, CONFIG)
+        query_metrics(_plan(_straight(10.0)), _human(_straight(10.0)), actors, EGO, CONFIG)
 
 
 def test_metrics_config_rejects_an_empty_range_naming_the_key() -> None:

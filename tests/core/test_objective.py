@@ -18,13 +18,13 @@ from advsim_ros.core.objective import (
     scorer_settings_from_params,
 )
 from advsim_ros.core.params import ParamsError
-from advsim_ros.core.types import DrivableArea, EgoTrajectory, Plan, RoadMap, ScenarioError
+from advsim_ros.core.types import DrivableArea, EgoGeometry, EgoTrajectory, Plan, RoadMap, ScenarioError
 
 REPO = Path(__file__).resolve().parents[2]
 DT = 0.1  # [s]
 STEPS = 50
 START_NS = 5_000_000_000
-EGO_SIZE = np.array([4.5, 1.9, 1.7])  # [m]; the box centre is 1 m ahead of the ego origin by default
+EGO = EgoGeometry(np.array([4.5, 1.9, 1.7]), forward_offset=1.0)  # the SDV's box, 1 m ahead of its origin
 CONFIG = ObjectiveConfig()
 
 
@@ -56,20 +56,20 @@ NO_ACTORS = ActorFutures(np.zeros((0, STEPS, 3)), np.zeros((0, 2)))
 
 def test_imitation_loss_is_the_mean_smooth_l1_to_the_human_poses() -> None:
     human = _human(_straight())
-    small = evaluate_objective(_plan(_straight(lateral=0.5)), human, NO_ACTORS, EGO_SIZE, CONFIG)
+    small = evaluate_objective(_plan(_straight(lateral=0.5)), human, NO_ACTORS, EGO, CONFIG)
     assert small.imitation == pytest.approx(0.5 * 0.5**2)  # quadratic below beta = 1 m
-    large = evaluate_objective(_plan(_straight(lateral=3.0)), human, NO_ACTORS, EGO_SIZE, CONFIG)
+    large = evaluate_objective(_plan(_straight(lateral=3.0)), human, NO_ACTORS, EGO, CONFIG)
     assert large.imitation == pytest.approx(3.0 - 0.5)  # linear above
 
 
 def test_collision_cost_rises_before_contact_and_exceeds_one_on_overlap() -> None:
     plan, human = _plan(_straight()), _human(_straight())
-    one_metre = evaluate_objective(plan, human, _alongside(1.0), EGO_SIZE, CONFIG)
+    one_metre = evaluate_objective(plan, human, _alongside(1.0), EGO, CONFIG)
     assert one_metre.collision == pytest.approx(STEPS * (1.0 - 1.0 / CONFIG.collision_margin))
     assert one_metre.closest_distance == pytest.approx(1.0)
-    far = evaluate_objective(plan, human, _alongside(3.0), EGO_SIZE, CONFIG)
+    far = evaluate_objective(plan, human, _alongside(3.0), EGO, CONFIG)
     assert far.collision == 0.0
-    same_box = evaluate_objective(plan, human, _alongside(-1.9), EGO_SIZE, CONFIG)  # exactly on the ego box
+    same_box = evaluate_objective(plan, human, _alongside(-1.9), EGO, CONFIG)  # exactly on the ego box
     assert same_box.collision == pytest.approx(STEPS * 2.0)  # 1 + IoU of 1 at every step
     assert same_box.closest_distance == 0.0
 
@@ -77,9 +77,9 @@ def test_collision_cost_rises_before_contact_and_exceeds_one_on_overlap() -> Non
 def test_comfort_cost_charges_jerk_above_the_limit() -> None:
     times = np.arange(STEPS) * DT
     xy = np.stack([10.0 * times + 3.0 * times**3 / 6.0, np.zeros(STEPS)], axis=-1)  # jerk 3 m/s^3, limit 2
-    terms = evaluate_objective(_plan(xy), _human(xy), NO_ACTORS, EGO_SIZE, CONFIG)
+    terms = evaluate_objective(_plan(xy), _human(xy), NO_ACTORS, EGO, CONFIG)
     assert terms.comfort == pytest.approx(CONFIG.jerk_weight * 1.0 * (STEPS - 3), rel=1e-6)
-    smooth = evaluate_objective(_plan(_straight()), _human(_straight()), NO_ACTORS, EGO_SIZE, CONFIG)
+    smooth = evaluate_objective(_plan(_straight()), _human(_straight()), NO_ACTORS, EGO, CONFIG)
     assert smooth.comfort == 0.0
     assert not smooth.lane_available
 
@@ -91,12 +91,12 @@ def test_leaving_the_drivable_area_and_the_lane_costs_only_when_a_map_is_given()
     drivable = DrivableArea(origin=np.array([-50.0, -4.0]), resolution=0.25, mask=mask, source="map")
     road_map = RoadMap(lane_centerlines=(np.array([[-50.0, 0.0], [150.0, 0.0]]),))
     plan, human = _plan(_straight(lateral=5.0)), _human(_straight(lateral=5.0))
-    off_road = evaluate_objective(plan, human, NO_ACTORS, EGO_SIZE, CONFIG, drivable=drivable, road_map=road_map)
+    off_road = evaluate_objective(plan, human, NO_ACTORS, EGO, CONFIG, drivable=drivable, road_map=road_map)
     expected = STEPS * (CONFIG.drivable_weight * 1.0 + CONFIG.lane_weight * (5.0 - CONFIG.lane_half_width))
     assert off_road.lane_available
     assert off_road.comfort == pytest.approx(expected)
     plan, human = _plan(_straight()), _human(_straight())
-    on_road = evaluate_objective(plan, human, NO_ACTORS, EGO_SIZE, CONFIG, drivable=drivable, road_map=road_map)
+    on_road = evaluate_objective(plan, human, NO_ACTORS, EGO, CONFIG, drivable=drivable, road_map=road_map)
     assert on_road.comfort == 0.0
 
 
@@ -109,7 +109,7 @@ def test_lane_cost_works_with_centrelines_of_different_lengths() -> None:
         )
     )
     plan, human = _plan(_straight(lateral=5.0)), _human(_straight(lateral=5.0))
-    terms = evaluate_objective(plan, human, NO_ACTORS, EGO_SIZE, CONFIG, road_map=road_map)
+    terms = evaluate_objective(plan, human, NO_ACTORS, EGO, CONFIG, road_map=road_map)
     assert terms.lane_available
     assert terms.comfort == pytest.approx(STEPS * CONFIG.lane_weight * (5.0 - CONFIG.lane_half_width))
 
@@ -117,7 +117,7 @@ def test_lane_cost_works_with_centrelines_of_different_lengths() -> None:
 def test_presets_switch_terms_and_the_full_objective_is_their_weighted_sum() -> None:
     plan, human = _plan(_straight(lateral=0.5)), _human(_straight())
     actors = _alongside(1.0)
-    terms = evaluate_objective(plan, human, actors, EGO_SIZE, CONFIG)
+    terms = evaluate_objective(plan, human, actors, EGO, CONFIG)
     expected = {
         "M0": terms.imitation,
         "M1": terms.collision,
@@ -127,9 +127,9 @@ def test_presets_switch_terms_and_the_full_objective_is_their_weighted_sum() -> 
         "M5": terms.imitation + terms.collision + terms.comfort,
     }
     for name, value in expected.items():
-        assert evaluate_objective(plan, human, actors, EGO_SIZE, objective_preset(name)).value == pytest.approx(value)
+        assert evaluate_objective(plan, human, actors, EGO, objective_preset(name)).value == pytest.approx(value)
     weighted = dataclasses.replace(CONFIG, imitation_weight=2.0, collision_weight=3.0)
-    assert evaluate_objective(plan, human, actors, EGO_SIZE, weighted).value == pytest.approx(
+    assert evaluate_objective(plan, human, actors, EGO, weighted).value == pytest.approx(
         2.0 * terms.imitation + 3.0 * terms.collision + terms.comfort,
     )
 
@@ -137,8 +137,8 @@ def test_presets_switch_terms_and_the_full_objective_is_their_weighted_sum() -> 
 def test_closest_distance_baseline_is_minus_the_smallest_gap() -> None:
     plan, human = _plan(_straight()), _human(_straight())
     config = objective_preset("closest_distance")
-    assert evaluate_objective(plan, human, _alongside(1.5), EGO_SIZE, config).value == pytest.approx(-1.5)
-    assert evaluate_objective(plan, human, NO_ACTORS, EGO_SIZE, config).value == pytest.approx(-np.hypot(72.0, 40.0))
+    assert evaluate_objective(plan, human, _alongside(1.5), EGO, config).value == pytest.approx(-1.5)
+    assert evaluate_objective(plan, human, NO_ACTORS, EGO, config).value == pytest.approx(-np.hypot(72.0, 40.0))
 
 
 def test_max_margin_baseline_is_how_much_costlier_the_plan_is_than_the_human_trajectory() -> None:
@@ -147,25 +147,25 @@ def test_max_margin_baseline_is_how_much_costlier_the_plan_is_than_the_human_tra
     plan = _plan(_straight(lateral=2.5))
     actors = _alongside(1.0)
     config = objective_preset("max_margin")
-    value = evaluate_objective(plan, human, actors, EGO_SIZE, config).value
-    plan_cost = evaluate_objective(plan, human, actors, EGO_SIZE, CONFIG).collision
+    value = evaluate_objective(plan, human, actors, EGO, config).value
+    plan_cost = evaluate_objective(plan, human, actors, EGO, CONFIG).collision
     human_cost = STEPS * (1.0 - 1.0 / CONFIG.collision_margin)
     assert plan_cost > human_cost
     assert value == pytest.approx(plan_cost - human_cost)
-    assert evaluate_objective(_plan(_straight()), human, actors, EGO_SIZE, config).value == pytest.approx(0.0)
+    assert evaluate_objective(_plan(_straight()), human, actors, EGO, config).value == pytest.approx(0.0)
 
 
 def test_plans_too_short_for_jerk_are_rejected() -> None:
     short = _straight()[:3]
     actors = ActorFutures(np.zeros((0, 3, 3)), np.zeros((0, 2)))
     with pytest.raises(ScenarioError, match="needs >= 4"):
-        evaluate_objective(_plan(short), _human(_straight()), actors, EGO_SIZE, CONFIG)
+        evaluate_objective(_plan(short), _human(_straight()), actors, EGO, CONFIG)
 
 
 def test_a_plan_beyond_the_log_is_rejected_by_the_imitation_term() -> None:
     human = EgoTrajectory(np.array([0, 1_000_000_000]), np.tile(np.eye(4), (2, 1, 1)))
     with pytest.raises(ScenarioError, match="does not cover"):
-        evaluate_objective(_plan(_straight()), human, NO_ACTORS, EGO_SIZE, CONFIG)
+        evaluate_objective(_plan(_straight()), human, NO_ACTORS, EGO, CONFIG)
 
 
 def test_objective_config_names_the_bad_key() -> None:

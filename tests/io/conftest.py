@@ -52,7 +52,8 @@ def assert_scenarios_equal(read: Scenario, written: Scenario, pose_atol: float =
     np.testing.assert_array_equal(read.frame_stamps_ns, written.frame_stamps_ns)
     np.testing.assert_allclose(read.ego.poses, written.ego.poses, rtol=0, atol=pose_atol)
     np.testing.assert_allclose(read.ego_T_sensor, written.ego_T_sensor, rtol=0, atol=pose_atol)
-    np.testing.assert_array_equal(read.ego_size, written.ego_size)
+    np.testing.assert_array_equal(read.ego_geometry.size, written.ego_geometry.size)
+    assert read.ego_geometry.forward_offset == written.ego_geometry.forward_offset
     assert [actor.actor_id for actor in read.actors] == [actor.actor_id for actor in written.actors]
     for mine, theirs in zip(read.actors, written.actors, strict=True):
         assert mine.actor_class is theirs.actor_class

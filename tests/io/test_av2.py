@@ -42,7 +42,7 @@ def test_the_ego_size_comes_from_the_ego_vehicle_label_where_there_is_one(av2_lo
         ego_rows = [i for i, category in enumerate(table["category"].to_pylist()) if category == "EGO_VEHICLE"]
         names = ("length_m", "width_m", "height_m")
         labelled = [np.median(np.take(table[name].to_numpy(), ego_rows)) for name in names]
-        np.testing.assert_allclose(load_av2_log(log).ego_size, labelled)
+        np.testing.assert_allclose(load_av2_log(log).ego_geometry.size, labelled)
 
 
 def test_the_ego_drives_inside_the_drivable_area_along_lane_centrelines(av2_logs: list[Path]) -> None:

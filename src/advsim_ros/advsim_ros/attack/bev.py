@@ -64,7 +64,7 @@ def draw_bev(
                 box = np.array([*actor.centers[i, :2], actor.yaws[i], actor.length, actor.width])
                 corners = box_corners(box)
                 axis.fill(corners[:, 0], corners[:, 1], color=color, alpha=0.5 if moved else 0.3)
-        ego_box = np.array([*ego_pose[:2, 3], math.atan2(ego_pose[1, 0], ego_pose[0, 0]), *source.ego_size[:2]])
+        ego_box = source.ego_geometry.boxes(ego_pose[:2, 3], np.array(math.atan2(ego_pose[1, 0], ego_pose[0, 0])))
         corners = box_corners(ego_box)
         axis.fill(corners[:, 0], corners[:, 1], color="tab:green", alpha=0.6, label="SDV")
         axis.plot(future[:, 0], future[:, 1], color="tab:green", lw=2, label="human trajectory")

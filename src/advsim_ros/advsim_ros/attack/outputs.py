@@ -164,8 +164,7 @@ def _write_adversarial_bag(
         ego_T_sensor=cropped.ego_T_sensor,
         sensor=cropped.sensor,
         road_map=cropped.road_map,
-        ego_size=cropped.ego_size,
-        ego_forward_offset=cropped.ego_forward_offset,
+        ego_geometry=cropped.ego_geometry,
         sensor_frame=cropped.sensor_frame,
         drivable_area=drivable,
     )

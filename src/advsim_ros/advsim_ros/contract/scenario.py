@@ -14,6 +14,7 @@ from advsim_ros.contract.spatial import pose_matrix, pose_msg, transform_msg
 from advsim_ros.core.types import (
     SOURCE_LOG,
     DrivableArea,
+    EgoGeometry,
     FloatArray,
     RoadMap,
     Scenario,
@@ -127,8 +128,7 @@ class ScenarioInfoRecord:
     ego_frame: str
     sensor_frame: str
     ego_T_sensor: FloatArray  # (4, 4)
-    ego_size: FloatArray  # (3,) length, width, height [m]
-    ego_forward_offset: float  # [m]
+    ego_geometry: EgoGeometry
     sensor: SensorModel | None
 
 
@@ -142,10 +142,10 @@ def scenario_info_msg(scenario: Scenario, world_frame: str, ego_frame: str, sens
         ego_frame=ego_frame,
         sensor_frame=sensor_frame,
         ego_to_sensor=transform_msg(scenario.ego_T_sensor),
-        ego_length=float(scenario.ego_size[0]),
-        ego_width=float(scenario.ego_size[1]),
-        ego_height=float(scenario.ego_size[2]),
-        ego_forward_offset=float(scenario.ego_forward_offset),
+        ego_length=float(scenario.ego_geometry.size[0]),
+        ego_width=float(scenario.ego_geometry.size[1]),
+        ego_height=float(scenario.ego_geometry.size[2]),
+        ego_forward_offset=float(scenario.ego_geometry.forward_offset),
         has_sensor_model=sensor is not None,
         beam_elevations=np.array(sensor.beam_elevations if sensor else [], dtype=np.float64),
         azimuth_resolution=float(sensor.azimuth_resolution) if sensor else 0.0,
@@ -170,7 +170,9 @@ def scenario_info_from_msg(info: Any, what: str) -> ScenarioInfoRecord:
         ego_frame=str(info.ego_frame),
         sensor_frame=str(info.sensor_frame),
         ego_T_sensor=pose_matrix(info.ego_to_sensor.translation, info.ego_to_sensor.rotation, what),
-        ego_size=np.array([info.ego_length, info.ego_width, info.ego_height], dtype=np.float64),
-        ego_forward_offset=float(getattr(info, "ego_forward_offset", 1.0)),  # bags written before the field: 1 m
+        ego_geometry=EgoGeometry(
+            np.array([info.ego_length, info.ego_width, info.ego_height], dtype=np.float64),
+            float(getattr(info, "ego_forward_offset", 1.0)),  # bags written before the field existed: 1 m
+        ),
         sensor=sensor,
     )

@@ -41,7 +41,6 @@ class CurationConfig:
     max_speed: float = 15.0  # SDV speed limit of the sampled trajectories [m/s]
     static_speed: float = 0.5  # actors whose net displacement over the window is slower are static [m/s]
     lead_max_distance: float = 50.0  # the ignored lead vehicle is at most this far ahead [m]
-    ego_forward_offset: float = 1.0  # SDV box centre ahead of the ego frame origin [m]
 
     def __post_init__(self) -> None:
         for name in ("history_frames", "future_frames", "step_frames"):
@@ -251,15 +250,7 @@ def evaluate_window(scenario: Scenario, start_frame: int, config: CurationConfig
     low = max(decision - 1, 0)
     speed = float(np.linalg.norm(scenario.ego.xy[decision + 1] - scenario.ego.xy[low]) / step)
     xy, headings = sample_sdv_trajectories(path, speed, times, config)
-    centres = xy + config.ego_forward_offset * np.stack([np.cos(headings), np.sin(headings)], axis=-1)
-    sdv = np.concatenate(
-        [
-            centres,
-            headings[..., None],
-            np.broadcast_to(scenario.ego_size[:2], (*headings.shape, 2)),
-        ],
-        axis=-1,
-    )
+    sdv = scenario.ego_geometry.boxes(xy, headings)
     ego_s = float(world_to_frenet(path, scenario.ego.xy[decision : decision + 1])[0][0])
     lead = _lead_vehicle(scenario, path, int(stamps[decision]), ego_s, config)
     moving = [
@@ -346,8 +337,7 @@ def crop_frames(scenario: Scenario, first_frame: int, last_frame: int) -> Scenar
         ego_T_sensor=scenario.ego_T_sensor,
         sensor=scenario.sensor,
         road_map=scenario.road_map,
-        ego_size=scenario.ego_size,
-        ego_forward_offset=scenario.ego_forward_offset,
+        ego_geometry=scenario.ego_geometry,
         sensor_frame=scenario.sensor_frame,
         drivable_area=scenario.drivable_area,
     )

@@ -34,18 +34,23 @@ DRIVING_CLASSES = (ActorClass.VEHICLE, ActorClass.CYCLIST)
 
 @dataclass(frozen=True)
 class DrivableConfig:
-    """How the drivable raster is built (params/perturber.yaml, keys drivable_*)."""
+    """How the drivable raster is built (params/drivable.yaml, one setting for every node)."""
 
     resolution: float = 0.25  # raster cell edge [m]
     reach: float = 110.0  # raster extends this far beyond every logged position [m]
     ground_cell: float = 0.5  # cell edge of the LiDAR ground-height grid [m]
     max_step: float = 0.06  # largest height step between neighbouring road cells [m]; kerbs are ~0.1-0.15 m
     max_growth: float = 6.0  # road surface grows at most this far out of the driven area [m]
-    max_sweeps: int = 40  # LiDAR sweeps used for the ground grid, spread evenly over the log
+    max_sweeps: int = 20  # LiDAR sweeps used for the ground grid, spread evenly over the log
     max_point_range: float = 40.0  # LiDAR returns farther than this from the sensor are ignored [m]
     closing: float = 1.0  # gaps narrower than this between driven and grown areas are filled [m]
 
     def __post_init__(self) -> None:
+        if float(np.float32(self.resolution)) != self.resolution:
+            raise ScenarioError(
+                f"DrivableConfig resolution: {self.resolution} m is not exact in float32 (the raster travels as "
+                "nav_msgs/OccupancyGrid); use e.g. 0.125, 0.25 or 0.5"
+            )
         for name in ("resolution", "reach", "ground_cell", "max_step", "max_point_range"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -109,15 +114,9 @@ def rasterize_boxes(mask: BoolArray, origin: FloatArray, resolution: float, boxe
         mask[row_lo:row_hi, col_lo:col_hi] |= inside
 
 
-def driven_boxes(scenario: Scenario, ego_forward_offset: float) -> FloatArray:
+def driven_boxes(scenario: Scenario) -> FloatArray:
     """(B, 5) footprints of the ego and of every vehicle and cyclist at every logged frame [m, rad]."""
-    yaws = scenario.ego.yaws
-    ego_xy = scenario.ego.xy + ego_forward_offset * np.column_stack([np.cos(yaws), np.sin(yaws)])
-    parts = [
-        np.column_stack(
-            [ego_xy, yaws, np.full_like(yaws, scenario.ego_size[0]), np.full_like(yaws, scenario.ego_size[1])]
-        )
-    ]
+    parts = [scenario.ego_geometry.boxes(scenario.ego.xy, scenario.ego.yaws)]
     for actor in scenario.actors:
         if actor.actor_class not in DRIVING_CLASSES:
             continue
@@ -185,12 +184,12 @@ def _disk(radius_cells: int) -> BoolArray:
 
 
 def estimate_drivable_area(
-    scenario: Scenario, config: DrivableConfig, ego_forward_offset: float, extent: tuple[float, float, float, float]
+    scenario: Scenario, config: DrivableConfig, extent: tuple[float, float, float, float]
 ) -> DrivableArea:
     """Drivable area of a log without a map: driven footprints, grown over LiDAR ground, then closed."""
     origin, shape = _empty_grid(extent, config.resolution)
     driven = np.zeros(shape, dtype=bool)
-    rasterize_boxes(driven, origin, config.resolution, driven_boxes(scenario, ego_forward_offset))
+    rasterize_boxes(driven, origin, config.resolution, driven_boxes(scenario))
     mask = driven
     if scenario.sweeps and config.max_growth > 0 and config.max_sweeps > 0:
         factor = max(1, round(config.ground_cell / config.resolution))
@@ -211,11 +210,11 @@ def estimate_drivable_area(
     return DrivableArea(origin, config.resolution, np.asarray(mask, dtype=bool), SOURCE_LOG)
 
 
-def drivable_area_for(scenario: Scenario, config: DrivableConfig, ego_forward_offset: float) -> DrivableArea:
+def drivable_area_for(scenario: Scenario, config: DrivableConfig) -> DrivableArea:
     """The scenario's stored drivable area, else its map's, else the estimate from the log."""
     if scenario.drivable_area is not None:
         return scenario.drivable_area
     extent = scenario_extent(scenario, config.reach)
     if scenario.road_map is not None and scenario.road_map.drivable_areas:
         return drivable_area_from_map(scenario.road_map, extent, config.resolution)
-    return estimate_drivable_area(scenario, config, ego_forward_offset, extent)
+    return estimate_drivable_area(scenario, config, extent)

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from advsim_ros.core.geometry import bev_iou, boxes_overlap, wrap_angle
-from advsim_ros.core.types import ActorTrack, EgoTrajectory, FloatArray, Plan, ScenarioError
+from advsim_ros.core.types import ActorTrack, EgoGeometry, EgoTrajectory, FloatArray, Plan, ScenarioError
 
 NS_PER_S = 1_000_000_000
 BoolArray = npt.NDArray[np.bool_]
@@ -39,7 +39,6 @@ class MetricsConfig:
     y_range: tuple[float, float] = (-40.0, 40.0)  # evaluation range to the ego's left [m]
     iou_threshold: float = 0.7  # BEV IoU for a detection to match a ground-truth box [1]
     prediction_match_radius: float = 2.0  # a prediction belongs to the nearest actor within this at its start [m]
-    ego_forward_offset: float = 1.0  # SDV box centre ahead of the ego frame origin [m]
 
     def __post_init__(self) -> None:
         name = type(self).__name__
@@ -53,8 +52,6 @@ class MetricsConfig:
             raise ScenarioError(f"{name}.iou_threshold: must be in (0, 1], got {self.iou_threshold}")
         if not self.prediction_match_radius > 0.0:
             raise ScenarioError(f"{name}.prediction_match_radius: must be positive, got {self.prediction_match_radius}")
-        if not np.isfinite(self.ego_forward_offset):
-            raise ScenarioError(f"{name}.ego_forward_offset: must be finite, got {self.ego_forward_offset}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,13 +174,6 @@ def human_at(human: EgoTrajectory, query_ns: npt.NDArray[np.int64]) -> tuple[Flo
     return interpolate_trajectory(human.stamps_ns, human.xy, human.yaws, query_ns)
 
 
-def ego_boxes(xy: FloatArray, yaws: FloatArray, ego_size: FloatArray, forward_offset: float) -> FloatArray:
-    """(H, 5) SDV boxes along a trajectory of ego-origin poses; ego_size = (length, width, ...) [m]."""
-    centre = xy + forward_offset * np.stack([np.cos(yaws), np.sin(yaws)], axis=-1)
-    sizes = np.broadcast_to(np.asarray(ego_size, dtype=np.float64)[:2], (xy.shape[0], 2))
-    return np.concatenate([centre, yaws[:, None], sizes], axis=-1)
-
-
 def to_ego_frame(points_xy: FloatArray, ego_xy: FloatArray, ego_yaw: float) -> FloatArray:
     """(..., 2) world points in the frame of an ego pose (x forward, y left) [m]."""
     offset = points_xy - ego_xy
@@ -217,10 +207,10 @@ def actors_in_range(plan: Plan, actors: ActorFutures, config: MetricsConfig) -> 
     return in_range(actors.states[:, 0, :2], plan.xy[0], float(plan.yaws[0]), config)
 
 
-def collision_steps(plan: Plan, actors: ActorFutures, ego_size: FloatArray, config: MetricsConfig) -> BoolArray:
+def collision_steps(plan: Plan, actors: ActorFutures, ego: EgoGeometry, config: MetricsConfig) -> BoolArray:
     """(H,) whether the SDV's plan box overlaps any in-range actor's box at each plan stamp."""
     require_aligned(plan, actors)
-    boxes = ego_boxes(plan.xy, plan.yaws, ego_size, config.ego_forward_offset)
+    boxes = ego.boxes(plan.xy, plan.yaws)
     active = actors_in_range(plan, actors, config)
     if not np.any(active):
         return np.zeros(plan.stamps_ns.shape[0], dtype=bool)
@@ -386,14 +376,14 @@ def query_metrics(
     plan: Plan,
     human: EgoTrajectory,
     actors: ActorFutures,
-    ego_size: FloatArray,
+    ego: EgoGeometry,
     config: MetricsConfig,
     detection: DetectionTally | None = None,
     predictions: Predictions | None = None,
 ) -> QueryMetrics:
     """Every planning metric of one query (see the module docstring for the definitions)."""
     times = plan_times(plan)
-    colliding = collision_steps(plan, actors, ego_size, config)
+    colliding = collision_steps(plan, actors, ego, config)
     first = float(times[np.argmax(colliding)]) if np.any(colliding) else float("nan")
     collision = np.array([float(np.isfinite(first) and first <= horizon + 1e-9) for horizon in config.horizons])
     decision_ns = int(plan.stamps_ns[0])

@@ -37,14 +37,13 @@ from advsim_ros.core.metrics import (
     ActorFutures,
     MetricsConfig,
     actors_in_range,
-    ego_boxes,
     human_at,
     plan_times,
     require_aligned,
     trajectory_kinematics,
 )
 from advsim_ros.core.params import ParamsError, config_from_mapping, load_node_params
-from advsim_ros.core.types import EgoTrajectory, FloatArray, Plan, RoadMap, ScenarioError
+from advsim_ros.core.types import EgoGeometry, EgoTrajectory, FloatArray, Plan, RoadMap, ScenarioError
 
 if TYPE_CHECKING:  # the raster type only; importing drivable pulls in scipy
     from advsim_ros.core.types import DrivableArea
@@ -75,7 +74,6 @@ class ObjectiveConfig:
     drivable_weight: float = 1.0  # cost of a box entirely off the drivable area [1]
     lane_weight: float = 0.5  # cost per metre beyond half a lane from the nearest centreline [1/m]
     lane_half_width: float = 1.75  # half a lane's width [m]
-    ego_forward_offset: float = 1.0  # SDV box centre ahead of the ego frame origin [m]
 
     def __post_init__(self) -> None:
         name = type(self).__name__
@@ -102,8 +100,6 @@ class ObjectiveConfig:
             value = getattr(self, key)
             if not (np.isfinite(value) and value > 0.0):
                 raise ScenarioError(f"{name}.{key}: must be positive, got {value!r}")
-        if not np.isfinite(self.ego_forward_offset):
-            raise ScenarioError(f"{name}.ego_forward_offset: must be finite, got {self.ego_forward_offset!r}")
 
 
 _PRESET_TERMS = {  # (imitation, collision, comfort): this project's reading of the paper's ablation rows
@@ -188,7 +184,7 @@ def comfort_costs(
     config: ObjectiveConfig,
     drivable: DrivableArea | None,
     road_map: RoadMap | None,
-    ego_size: FloatArray,
+    ego: EgoGeometry,
 ) -> tuple[FloatArray, bool]:
     """(H,) c_o at each plan pose, and whether the rule part (drivable area / lanes) was available.
 
@@ -202,7 +198,7 @@ def comfort_costs(
     jerk = np.maximum(0.0, np.abs(kinematics.jerk) - config.jerk_limit)
     cost[2 : 2 + jerk.shape[0]] += config.jerk_weight * jerk
     available = False
-    boxes = ego_boxes(plan.xy, plan.yaws, ego_size, config.ego_forward_offset)
+    boxes = ego.boxes(plan.xy, plan.yaws)
     if drivable is not None:
         available = True
         samples = np.concatenate([box_corners(boxes), boxes[:, None, :2]], axis=1)  # (H, 5, 2)
@@ -218,7 +214,7 @@ def comfort_costs(
 def _planning_cost(
     plan: Plan,
     actors: ActorFutures,
-    ego_size: FloatArray,
+    ego: EgoGeometry,
     config: ObjectiveConfig,
     metrics: MetricsConfig,
     drivable: DrivableArea | None,
@@ -226,9 +222,9 @@ def _planning_cost(
 ) -> tuple[float, float, float, bool]:
     """Collision sum, comfort sum, closest gap and lane availability of one trajectory."""
     active = actors_in_range(plan, actors, metrics)
-    sdv = ego_boxes(plan.xy, plan.yaws, ego_size, config.ego_forward_offset)
+    sdv = ego.boxes(plan.xy, plan.yaws)
     collision, gaps = collision_costs(sdv, actors.boxes()[active], config.collision_margin)
-    comfort, available = comfort_costs(plan, config, drivable, road_map, ego_size)
+    comfort, available = comfort_costs(plan, config, drivable, road_map, ego)
     return float(collision.sum()), float(comfort.sum()), float(gaps.min()), available
 
 
@@ -236,7 +232,7 @@ def evaluate_objective(
     plan: Plan,
     human: EgoTrajectory,
     actors: ActorFutures,
-    ego_size: FloatArray,
+    ego: EgoGeometry,
     config: ObjectiveConfig,
     metrics: MetricsConfig | None = None,
     drivable: DrivableArea | None = None,
@@ -245,7 +241,7 @@ def evaluate_objective(
     """The objective of one query: the stack's plan against the human trajectory and the actors.
 
     `actors` are sampled at the plan's stamps; only actors inside the metrics' evaluation
-    range at the decision time count. ego_size is (length, width[, height]) [m].
+    range at the decision time count; ``ego`` is the SDV's box.
     """
     metrics_config = MetricsConfig() if metrics is None else metrics
     require_aligned(plan, actors)
@@ -253,7 +249,7 @@ def evaluate_objective(
         raise ScenarioError(f"objective: the plan has {plan.stamps_ns.shape[0]} poses, needs >= {MIN_PLAN_POSES}")
     imitation = imitation_loss(plan, human, config.smooth_l1_beta)
     collision, comfort, closest, available = _planning_cost(
-        plan, actors, ego_size, config, metrics_config, drivable, road_map
+        plan, actors, ego, config, metrics_config, drivable, road_map
     )
     if config.kind == "closest_distance":
         farthest = float(np.hypot(max(np.abs(metrics_config.x_range)), max(np.abs(metrics_config.y_range))))
@@ -264,7 +260,7 @@ def evaluate_objective(
             raise ScenarioError("max-margin objective: the human trajectory must cover every plan stamp")
         human_plan = Plan(plan.stamps_ns, human_xy, human_yaws)
         human_collision, human_comfort, _, _ = _planning_cost(
-            human_plan, actors, ego_size, config, metrics_config, drivable, road_map
+            human_plan, actors, ego, config, metrics_config, drivable, road_map
         )
         value = config.collision_weight * (collision - human_collision) + config.comfort_weight * (
             comfort - human_comfort

@@ -55,7 +55,7 @@ def evaluate_query(
     actors = replace_actors(scenario.actors, moved)
     futures = actor_futures_at(actors, full_plan.stamps_ns)
     terms = evaluate_objective(
-        full_plan, scenario.ego, futures, scenario.ego_size, settings.objective, settings.metrics, drivable,
+        full_plan, scenario.ego, futures, scenario.ego_geometry, settings.objective, settings.metrics, drivable,
         scenario.road_map,
     )  # fmt: skip
     tally = None
@@ -66,6 +66,8 @@ def evaluate_query(
         tally = match_detections(
             detections.boxes, detections.scores, at_decision.boxes()[:, 0], decision_pose[:2, 3], yaw, settings.metrics
         )
-    metrics = query_metrics(full_plan, scenario.ego, futures, scenario.ego_size, settings.metrics, tally, predictions)
+    metrics = query_metrics(
+        full_plan, scenario.ego, futures, scenario.ego_geometry, settings.metrics, tally, predictions
+    )
     ap = average_precision([tally]) if tally is not None else math.nan
     return QueryEvaluation(terms, metrics, ap)

@@ -210,6 +210,35 @@ class RoadMap:
         object.__setattr__(self, "lane_centerlines", lanes)
 
 
+@dataclass(frozen=True, eq=False)
+class EgoGeometry:
+    """The SDV's box: its size and where its centre sits in the ego frame (one record, carried by the scenario)."""
+
+    size: FloatArray = field(default_factory=lambda: np.array([4.5, 1.9, 1.7]))  # (3,) length, width, height [m]
+    forward_offset: float = 1.0  # centre of the box ahead of the ego frame's origin, along its heading [m]
+
+    def __post_init__(self) -> None:
+        size = _as_float_array("EgoGeometry size", self.size, (3,))
+        _require(bool(np.all(size > 0)), f"EgoGeometry size must be positive, got {size}")
+        _require(bool(np.isfinite(self.forward_offset)), "EgoGeometry forward_offset must be finite")
+        object.__setattr__(self, "size", size)
+
+    @property
+    def length(self) -> float:
+        return float(self.size[0])  # [m]
+
+    @property
+    def width(self) -> float:
+        return float(self.size[1])  # [m]
+
+    def boxes(self, xy: FloatArray, yaws: FloatArray) -> FloatArray:
+        """(..., 5) boxes [x, y, yaw, length, width] of the SDV at ego-frame poses xy (..., 2), yaws (...) [m, rad]."""
+        centre = xy + self.forward_offset * np.stack([np.cos(yaws), np.sin(yaws)], axis=-1)
+        sizes = np.broadcast_to(self.size[:2], (*np.shape(yaws), 2))
+        result: FloatArray = np.concatenate([centre, np.asarray(yaws)[..., None], sizes], axis=-1)
+        return result
+
+
 SOURCE_MAP = "map"  # DrivableArea.source: rasterised from the vector map
 SOURCE_LOG = "log estimate"  # estimated from the log (driven area grown over the LiDAR ground)
 
@@ -294,8 +323,7 @@ class Scenario:
     ego_T_sensor: FloatArray = field(default_factory=lambda: np.eye(4))  # (4, 4) rigid transform T_ego_sensor
     sensor: SensorModel | None = None  # LiDAR geometry when known
     road_map: RoadMap | None = None  # vector map when the log has one
-    ego_size: FloatArray = field(default_factory=lambda: np.array([4.5, 1.9, 1.7]))  # (3,) ego box l, w, h [m]
-    ego_forward_offset: float = 1.0  # centre of the ego box ahead of the ego frame's origin [m]
+    ego_geometry: EgoGeometry = field(default_factory=EgoGeometry)  # the SDV's box
     sensor_frame: str = ""  # name of the LiDAR frame ("" = the sweeps' frame_id, or unknown)
     drivable_area: DrivableArea | None = None  # a stored drivable raster (e.g. the estimate an attack used)
 
@@ -328,9 +356,6 @@ class Scenario:
         ego_T_sensor = _as_float_array(f"Scenario {self.scenario_id} ego_T_sensor", self.ego_T_sensor, (4, 4))
         _require(_is_rigid_transform(ego_T_sensor), f"Scenario {self.scenario_id}: ego_T_sensor is not rigid")
         object.__setattr__(self, "ego_T_sensor", ego_T_sensor)
-        ego_size = _as_float_array(f"Scenario {self.scenario_id} ego_size", self.ego_size, (3,))
-        _require(bool(np.all(ego_size > 0)), f"Scenario {self.scenario_id}: ego_size must be positive")
-        object.__setattr__(self, "ego_size", ego_size)
         sweep_frames = {sweep.frame_id for sweep in self.sweeps}
         _require(
             len(sweep_frames) <= 1, f"Scenario {self.scenario_id}: sweeps in several frames {sorted(sweep_frames)}"
@@ -340,10 +365,6 @@ class Scenario:
         _require(
             sweep_frames <= {self.sensor_frame},
             f"Scenario {self.scenario_id}: sweeps in frame {sorted(sweep_frames)}, sensor_frame {self.sensor_frame!r}",
-        )
-        _require(
-            bool(np.isfinite(self.ego_forward_offset)),
-            f"Scenario {self.scenario_id}: ego_forward_offset must be finite",
         )
 
     @property

@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 from advsim_ros.core.types import (
     ActorClass,
     ActorTrack,
+    EgoGeometry,
     EgoTrajectory,
     FloatArray,
     IntArray,
@@ -283,5 +284,5 @@ def load_av2_log(log_dir: Path) -> Scenario:
         ego_T_sensor=np.eye(4),
         sensor=None,
         road_map=load_av2_map(log_dir),
-        ego_size=np.array(AV2_EGO_SIZE) if ego_size is None else ego_size,
+        ego_geometry=EgoGeometry(np.array(AV2_EGO_SIZE) if ego_size is None else ego_size),
     )

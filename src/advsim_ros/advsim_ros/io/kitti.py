@@ -33,6 +33,7 @@ import numpy as np
 from advsim_ros.core.types import (
     ActorClass,
     ActorTrack,
+    EgoGeometry,
     EgoTrajectory,
     FloatArray,
     Scenario,
@@ -399,7 +400,7 @@ def load_kitti_tracking(root: Path, seq: str, poses: Path | None = None, *, pose
         ego_T_sensor=ego_T_sensor,
         sensor=hdl64e_sensor_model(),
         road_map=None,
-        ego_size=np.array(KITTI_EGO_SIZE),
+        ego_geometry=EgoGeometry(np.array(KITTI_EGO_SIZE)),
     )
 
 

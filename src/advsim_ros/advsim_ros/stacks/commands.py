@@ -104,7 +104,7 @@ def run_on_bag(
             stamp = int(scenario.frame_stamps_ns[step.frame_index])
             plan = plan_from_decision(step.output.plan, scenario.ego.poses[step.frame_index], stamp)
             actors = actor_futures_at(scenario.actors, plan.stamps_ns)
-            scored.append(query_metrics(plan, scenario.ego, actors, scenario.ego_size, metrics_config))
+            scored.append(query_metrics(plan, scenario.ego, actors, scenario.ego_geometry, metrics_config))
     nan = float("nan")
     total = aggregate_metrics(scored) if scored else None
     summary = RunSummary(

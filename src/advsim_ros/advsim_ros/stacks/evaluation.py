@@ -76,7 +76,7 @@ def evaluate_windows(
             steps[-1][1].plan, scenario.ego.poses[decision], int(scenario.frame_stamps_ns[decision])
         )
         actors = actor_futures_at(scenario.actors, plan.stamps_ns)
-        metrics = query_metrics(plan, scenario.ego, actors, scenario.ego_size, metrics_config)
+        metrics = query_metrics(plan, scenario.ego, actors, scenario.ego_geometry, metrics_config)
         results.append(WindowResult(scenario.scenario_id, decision, metrics, tuple(times)))
     return results
 

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from advsim_ros.core.drivable import DrivableConfig
 from advsim_ros.core.dynamics import KinematicBounds
 from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.types import ActorClass, ScenarioError
@@ -44,17 +43,8 @@ class PerturberConfig:
     max_accel: float = 2.0  # [m/s^2]
     max_lateral_accel: float = 3.0  # [m/s^2]
     max_speed: float = 15.0  # [m/s]
-    ego_forward_offset: float = 1.0  # SDV box centre ahead of the ego frame origin [m]
     collision_margin: float = 0.05  # perturbed boxes are grown by this on every side when pruning [m]
     drivable_margin: float = 0.0  # the actor's centre stays this far inside the drivable area [m]
-    drivable_resolution: float = 0.25  # drivable raster cell [m]
-    drivable_reach: float = 110.0  # drivable raster extent beyond the logged positions [m]
-    drivable_ground_cell: float = 0.5  # LiDAR ground-height grid cell (logs without a map) [m]
-    drivable_max_step: float = 0.06  # largest height step inside the road surface [m]
-    drivable_max_growth: float = 6.0  # road surface grows at most this far from driven areas [m]
-    drivable_max_sweeps: int = 20  # LiDAR sweeps used for the ground-height grid
-    drivable_max_point_range: float = 40.0  # LiDAR returns used up to this range [m]
-    drivable_closing: float = 1.0  # gaps narrower than this are filled [m]
     chunk_size: int = 4096  # candidates pruned at once: small enough for the CPU caches
     cull_cell: float = 1.0  # cell of the coarse collision raster [m]
     bound_slack: float = 1e-4  # relative tightening of the bounds while pruning in float32
@@ -91,8 +81,6 @@ class PerturberConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ScenarioError(f"PerturberConfig {name}: must be >= 0, got {value!r}")
-        if not math.isfinite(self.ego_forward_offset):
-            raise ScenarioError(f"PerturberConfig ego_forward_offset: must be finite, got {self.ego_forward_offset}")
         if self.bound_slack >= 0.01:
             raise ScenarioError(f"PerturberConfig bound_slack: must be below 0.01, got {self.bound_slack}")
         valid = {member.value for member in ActorClass}
@@ -104,7 +92,6 @@ class PerturberConfig:
             )
         object.__setattr__(self, "perturbable_classes", tuple(self.perturbable_classes))
         self.bounds  # noqa: B018 - validates the kinematic bounds with their own messages
-        self.drivable  # noqa: B018
 
     @property
     def bounds(self) -> KinematicBounds:
@@ -114,19 +101,6 @@ class PerturberConfig:
             max_accel=self.max_accel,
             max_lateral_accel=self.max_lateral_accel,
             max_speed=self.max_speed,
-        )
-
-    @property
-    def drivable(self) -> DrivableConfig:
-        return DrivableConfig(
-            resolution=self.drivable_resolution,
-            reach=self.drivable_reach,
-            ground_cell=self.drivable_ground_cell,
-            max_step=self.drivable_max_step,
-            max_growth=self.drivable_max_growth,
-            max_sweeps=self.drivable_max_sweeps,
-            max_point_range=self.drivable_max_point_range,
-            closing=self.drivable_closing,
         )
 
     @property

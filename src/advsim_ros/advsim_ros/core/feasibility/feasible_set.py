@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from advsim_ros.core.drivable import drivable_area_for
+from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.feasibility.config import PerturberConfig
 from advsim_ros.core.feasibility.obstacles import WindowObstacles, window_obstacles
 from advsim_ros.core.feasibility.projection_index import ProjectionIndex
@@ -73,7 +73,7 @@ def build_feasible_set(
     """
     reference = fit_reference(scenario, window, actor_id, config)
     if drivable is None:
-        drivable = drivable_area_for(scenario, config.drivable, config.ego_forward_offset)
+        drivable = drivable_area_for(scenario, DrivableConfig())  # a stored area (the nodes') wins
     if obstacles is None:
         obstacles = window_obstacles(scenario, window, config)
     pruner = Pruner(reference, config, drivable, obstacles)

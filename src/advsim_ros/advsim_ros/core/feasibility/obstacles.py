@@ -60,12 +60,10 @@ def actor_window_boxes(actor: ActorTrack, stamps: IntArray) -> tuple[FloatArray,
 
 
 def ego_window_boxes(scenario: Scenario, window: Window, config: PerturberConfig) -> FloatArray:
-    """(T, 5) boxes of the SDV's logged trajectory over the window, centred ego_forward_offset ahead of its frame."""
+    """(T, 5) boxes of the SDV's logged trajectory over the window (the scenario's ego geometry)."""
     frames = np.arange(window.start_frame, window.start_frame + window.num_steps)
-    yaw = scenario.ego.yaws[frames]
-    xy = scenario.ego.xy[frames] + config.ego_forward_offset * np.column_stack([np.cos(yaw), np.sin(yaw)])
-    count = frames.shape[0]
-    return np.column_stack([xy, yaw, np.full(count, scenario.ego_size[0]), np.full(count, scenario.ego_size[1])])
+    boxes: FloatArray = scenario.ego_geometry.boxes(scenario.ego.xy[frames], scenario.ego.yaws[frames])
+    return boxes
 
 
 def window_obstacles(scenario: Scenario, window: Window, config: PerturberConfig) -> WindowObstacles:

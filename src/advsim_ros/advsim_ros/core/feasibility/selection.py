@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from advsim_ros.core.drivable import drivable_area_for
+from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.feasibility.config import PerturberConfig
 from advsim_ros.core.feasibility.errors import InfeasibleError
 from advsim_ros.core.feasibility.feasible_set import FeasibleSet, build_feasible_set
@@ -94,7 +94,7 @@ def select_actors(
     exists. Raises InfeasibleError (its message lists every actor tried) if fewer are found.
     """
     if drivable is None:
-        drivable = drivable_area_for(scenario, config.drivable, config.ego_forward_offset)
+        drivable = drivable_area_for(scenario, DrivableConfig())  # a stored area (the nodes') wins
     obstacles = window_obstacles(scenario, window, config)
     stamps = window.stamps(scenario, config.frame_period)
     chosen: list[FeasibleSet] = []

@@ -180,7 +180,7 @@ def _assemble(path: Path, collected: _Collected, config: BagConfig, own_bag: boo
     try:
         geometry: dict[str, Any] = {}
         if info is not None:
-            geometry = {"ego_size": info.ego_size, "ego_forward_offset": info.ego_forward_offset}
+            geometry = {"ego_geometry": info.ego_geometry}
         if sensor_frame:
             geometry["sensor_frame"] = sensor_frame
         return Scenario(
