@@ -208,7 +208,9 @@ def _write_adversarial_bag(
     # issue 17 (advsim_ros.viz): MarkerArrays for Foxglove and RViz on /advsim/markers/*
     from advsim_ros.viz.markers import StackOutputs, scenario_markers
 
-    extra += scenario_markers(adversarial, recorded.actor_ids, StackOutputs(recorded.plan), window.decision_index, bag.world_frame)
+    extra += scenario_markers(
+        adversarial, recorded.actor_ids, StackOutputs(recorded.plan), window.decision_index, bag.world_frame
+    )
     write_scenario_bag(
         adversarial, out_dir / ADVERSARIAL_BAG, config=bag, source=f"advsim attack of {checked.bag}", overwrite=True,
         extra=extra,

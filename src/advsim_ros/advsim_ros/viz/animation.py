@@ -143,10 +143,22 @@ def write_bev_animation(view: AttackView, path: Path, config: AnimationConfig | 
     panels = []
     if view.original is not None:
         panels.append(
-            _Panel("original (logged)", view.original, view.original_plan, view.original_collision_ns, summary.get("original"))
+            _Panel(
+                "original (logged)",
+                view.original,
+                view.original_plan,
+                view.original_collision_ns,
+                summary.get("original"),
+            )
         )
     panels.append(
-        _Panel("adversarial", view.adversarial, view.adversarial_plan, view.adversarial_collision_ns, summary.get("adversarial"))
+        _Panel(
+            "adversarial",
+            view.adversarial,
+            view.adversarial_plan,
+            view.adversarial_collision_ns,
+            summary.get("adversarial"),
+        )
     )
     x0, x1, y0, y1 = _extent(view, config.margin, config.reach)
     # panels side by side, or one above the other for a long, flat scene (a straight road along x)
@@ -162,7 +174,10 @@ def write_bev_animation(view: AttackView, path: Path, config: AnimationConfig | 
         axes = list(axes_array[:, 0] if stacked else axes_array[0])
         decision_ns = view.decision_ns
         stamps = view.adversarial.frame_stamps_ns
-        updaters = [_draw_panel(axis, panel, view, decision_ns, config, Polygon) for axis, panel in zip(axes, panels, strict=True)]
+        updaters = [
+            _draw_panel(axis, panel, view, decision_ns, config, Polygon)
+            for axis, panel in zip(axes, panels, strict=True)
+        ]
         for axis in axes:
             axis.tick_params(labelsize=7)
             axis.set_ylabel("y [m]", fontsize=8)
@@ -195,7 +210,13 @@ def write_bev_animation(view: AttackView, path: Path, config: AnimationConfig | 
             images.append(Image.fromarray(rgba[..., :3].copy()))
     finally:
         plt.close(figure)
-    palette = images[0].quantize(colors=128, method=Image.Quantize.MEDIANCUT)
+    # one palette for every frame, from frames across the window (colours that appear late, the
+    # collision's red, must be in it)
+    picks = sorted({*np.linspace(0, len(images) - 1, 6).round().astype(int).tolist()})
+    strip = Image.new("RGB", (images[0].width, images[0].height * len(picks)))
+    for row, pick in enumerate(picks):
+        strip.paste(images[pick], (0, row * images[0].height))
+    palette = strip.quantize(colors=128, method=Image.Quantize.MEDIANCUT)
     frames = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -239,7 +260,13 @@ def _draw_panel(
     )
     axis.add_patch(ego_patch)
     planned_patch = polygon(
-        np.zeros((4, 2)), closed=True, fill=False, edgecolor="tab:orange", lw=2, zorder=6, label="SDV on its plan",
+        np.zeros((4, 2)),
+        closed=True,
+        fill=False,
+        edgecolor="tab:orange",
+        lw=2,
+        zorder=6,
+        label="SDV on its plan",
         animated=True,
     )
     planned_patch.set_visible(False)
@@ -254,7 +281,9 @@ def _draw_panel(
     title.set_animated(True)
     index_of = {int(stamp): i for i, stamp in enumerate(scenario.frame_stamps_ns.tolist())}
     collision_pose = (
-        plan_pose_at(full_plan, panel.collision_ns) if full_plan is not None and panel.collision_ns is not None else None
+        plan_pose_at(full_plan, panel.collision_ns)
+        if full_plan is not None and panel.collision_ns is not None
+        else None
     )
 
     def update(stamp: int) -> list[Any]:

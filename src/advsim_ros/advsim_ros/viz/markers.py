@@ -176,7 +176,7 @@ def plan_pose_at(plan: Plan, stamp: int) -> tuple[float, float, float] | None:
 
 
 def _ego_box_center(scenario: Scenario, x: float, y: float, z: float, yaw: float) -> tuple[float, float, float]:
-    """Centre of the SDV's box for the ego frame at (x, y, z, yaw): the box sits ego_forward_offset ahead, on the ground."""
+    """Centre of the SDV's box for the ego frame at (x, y, z, yaw): ego_forward_offset ahead, standing on the ground."""
     offset = scenario.ego_forward_offset
     return (x + offset * math.cos(yaw), y + offset * math.sin(yaw), z + float(scenario.ego_size[2]) / 2.0)
 
@@ -212,7 +212,13 @@ def scenario_markers(
             i = int(at[0])
             perturbed = actor.actor_id in moved
             namespace = "perturbed" if perturbed else "actors"
-            actors.box(namespace, actor.centers[i], float(actor.yaws[i]), actor.size, PERTURBED_COLOR if perturbed else ACTOR_COLOR)
+            actors.box(
+                namespace,
+                actor.centers[i],
+                float(actor.yaws[i]),
+                actor.size,
+                PERTURBED_COLOR if perturbed else ACTOR_COLOR,
+            )
             text = f"{actor.actor_id} {actor.actor_class.value}" + (" (perturbed)" if perturbed else "")
             actors.label(f"{namespace}_labels", actor.centers[i], actor.height, text)
             if perturbed:
@@ -235,7 +241,9 @@ def scenario_markers(
             if pose is not None:
                 colliding = collision_ns is not None and stamp >= collision_ns
                 center = _ego_box_center(scenario, pose[0], pose[1], float(ego_z[decision_index]), pose[2])
-                planned.box("sdv_planned", center, pose[2], scenario.ego_size, COLLISION_COLOR if colliding else PLAN_COLOR)
+                planned.box(
+                    "sdv_planned", center, pose[2], scenario.ego_size, COLLISION_COLOR if colliding else PLAN_COLOR
+                )
                 text = "SDV on its plan" + (" - COLLISION" if colliding else "")
                 planned.label("sdv_planned_labels", center, float(scenario.ego_size[2]), text)
             extra.append(planned.encoded(PLAN))
@@ -250,7 +258,9 @@ def _stack_perception(outputs: StackOutputs, decision_ns: int, frame_id: str) ->
         detections = _ArrayBuilder(decision_ns, frame_id)
         for track in outputs.detections:
             detections.box("detections", track.centers[0], float(track.yaws[0]), track.size, DETECTION_COLOR)
-            detections.label("detection_labels", track.centers[0], track.height, f"{track.actor_id} {track.actor_class.value}")
+            detections.label(
+                "detection_labels", track.centers[0], track.height, f"{track.actor_id} {track.actor_class.value}"
+            )
         found.append(detections.encoded(DETECTIONS))
     if outputs.predictions:
         predictions = _ArrayBuilder(decision_ns, frame_id)

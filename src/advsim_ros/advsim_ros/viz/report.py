@@ -158,7 +158,8 @@ def _actor_rows(view: AttackView) -> list[list[str]]:
             logged_speed = TrackRecord.from_actor_track(logged).velocity
             common = np.intersect1d(logged.stamps_ns, moved.stamps_ns)
             shift = np.linalg.norm(
-                moved.centers[np.isin(moved.stamps_ns, common), :2] - logged.centers[np.isin(logged.stamps_ns, common), :2],
+                moved.centers[np.isin(moved.stamps_ns, common), :2]
+                - logged.centers[np.isin(logged.stamps_ns, common), :2],
                 axis=1,
             )
             row += [f"{logged.centers[0, 0]:.1f}, {logged.centers[0, 1]:.1f}", f"{logged_speed[0]:.1f}"]
@@ -169,14 +170,16 @@ def _actor_rows(view: AttackView) -> list[list[str]]:
     return rows
 
 
-def _metric_rows(original: Mapping[str, Any] | None, adversarial: Mapping[str, Any] | None) -> tuple[list[list[str]], list[list[str]]]:
+def _metric_rows(
+    original: Mapping[str, Any] | None, adversarial: Mapping[str, Any] | None
+) -> tuple[list[list[str]], list[list[str]]]:
     rows, classes = [], []
     for key, label, unit in METRIC_ROWS:
         a = (original or {}).get(key)
         b = (adversarial or {}).get(key)
         rows.append([label, unit, number(a, 4), number(b, 4)])
-        worse = isinstance(a, int | float) and isinstance(b, int | float) and key in ("adversarial_loss", "collision_5s",
-                                                                                     "collision_3s") and b > a  # fmt: skip
+        numbers = isinstance(a, int | float) and isinstance(b, int | float)
+        worse = numbers and key in ("adversarial_loss", "collision_3s", "collision_5s") and b > a
         classes.append(["", "", "", "worse" if worse else ""])
     return rows, classes
 
@@ -186,8 +189,9 @@ def _verdict(view: AttackView) -> tuple[str, bool]:
     original = view.summary.get("original") or {}
     if adversarial.get("collision_5s") == 1.0 and view.adversarial_collision_ns is not None:
         seconds = (view.adversarial_collision_ns - view.decision_ns) / 1e9
-        return (f"The stack's plan collides {seconds:.1f} s after the decision in the adversarial scenario "
-                f"(original: {'collides too' if original.get('collision_5s') == 1.0 else 'no collision'}).", True)  # fmt: skip
+        before = "collides too" if original.get("collision_5s") == 1.0 else "no collision"
+        return f"The stack's plan collides {seconds:.1f} s after the decision in the adversarial scenario "\
+            f"(original: {before}).", True  # fmt: skip
     if adversarial.get("collision_5s") == 1.0:
         return "The stack's plan collides within 5 s in the adversarial scenario.", True
     return (
@@ -213,7 +217,8 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         score = query.get("score") or {}
         query_rows.append([
             str(query.get("query_id")), str(query.get("algorithm")), str(score.get("status")),
-            number(score.get("adversarial_loss"), 4), number(score.get("collision_5s")), number(score.get("l2_human_5s")),
+            number(score.get("adversarial_loss"), 4), number(score.get("collision_5s")),
+            number(score.get("l2_human_5s")),
             ", ".join(query.get("actor_ids") or []) or "-",
         ])  # fmt: skip
     reproductions = [
@@ -225,7 +230,9 @@ def render_report(view: AttackView, out_dir: Path) -> str:
     bag_name = view.bag.name
     mcaps = sorted(view.bag.glob("*.mcap"))
     links = [f'<a href="{_e(bag_name)}/">{_e(bag_name)}/</a> (the scenario bag)']
-    links += [f'<a href="{_e(bag_name)}/{_e(m.name)}">{_e(bag_name)}/{_e(m.name)}</a> (open in Foxglove)' for m in mcaps]
+    links += [
+        f'<a href="{_e(bag_name)}/{_e(m.name)}">{_e(bag_name)}/{_e(m.name)}</a> (open in Foxglove)' for m in mcaps
+    ]
     links += [f'<a href="{name}">{name}</a>' for name in ("summary.json", "queries.jsonl", "bev.png", "bev.gif")
               if (out_dir / name).is_file()]  # fmt: skip
     perturbed = _actor_rows(view)
@@ -244,9 +251,11 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         f"{number(summary.get('wall_time_s'))} s</p>",
         f'<p class="verdict{" fail" if failed else ""}" id="verdict">{_e(verdict)}</p>',
         "<h2>Bird's-eye view, original vs adversarial</h2>",
-        f'<figure><img id="bev-animation" alt="animated bird\'s-eye view" src="{gif}"></figure>' if gif else
-        '<p class="muted">bev.gif was not written.</p>',
-        '<p class="muted">Red: perturbed actors (dashed: their paths); blue: other actors; green: the SDV as logged and '
+        f'<figure><img id="bev-animation" alt="animated bird\'s-eye view" src="{gif}"></figure>'
+        if gif
+        else '<p class="muted">bev.gif was not written.</p>',
+        '<p class="muted">Red: perturbed actors (dashed: their paths); blue: other actors; green: the SDV as logged '
+        "and "
         "the human trajectory; orange: the stack's plan of the decision frame and the SDV following it (red star: "
         "the first collision); grey: the LiDAR the stack saw (history, then the decision sweep).</p>",
         "<h2>Original vs adversarial</h2>",
@@ -254,9 +263,21 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         '<p class="muted">L_adv = imitation term + collision term + comfort term (weights in params/scorer.yaml); '
         "adversarial = the recorded query (the last re-run of the best).</p>",
         "<h2>Perturbed actors</h2>",
-        _table(["actor", "class", "size l×w×h [m]", "perturbed start x, y [m]", "perturbed speed [m/s]",
-                "logged start x, y [m]", "logged speed [m/s]", "max shift [m]"], perturbed)  # fmt: skip
-        if perturbed else '<p class="muted">No actor was perturbed.</p>',
+        _table(
+            [
+                "actor",
+                "class",
+                "size l×w×h [m]",
+                "perturbed start x, y [m]",
+                "perturbed speed [m/s]",
+                "logged start x, y [m]",
+                "logged speed [m/s]",
+                "max shift [m]",
+            ],
+            perturbed,
+        )
+        if perturbed
+        else '<p class="muted">No actor was perturbed.</p>',
         "<h2>Query history</h2>",
         f'<figure id="history">{history_svg(queries)}</figure>' if queries else "<p>No query finished.</p>",
         '<button data-toggle="queries" data-label="every query">show every query</button>',
@@ -264,8 +285,12 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         + _table(["query", "algorithm", "status", "L_adv", "collision@5s", "L2@5s [m]", "actors"], query_rows)
         + "</div>",
         "<h2>Re-runs of the best</h2>",
-        _table(["query", "re-runs", "L_adv of each", "spread", "reproduced", "inputs identical", "plans identical"],
-               reproductions) if reproductions else '<p class="muted">No re-runs.</p>',  # fmt: skip
+        _table(
+            ["query", "re-runs", "L_adv of each", "spread", "reproduced", "inputs identical", "plans identical"],
+            reproductions,
+        )
+        if reproductions
+        else '<p class="muted">No re-runs.</p>',
         "<h2>Still view</h2>",
         f'<figure><img id="bev-still" alt="bird\'s-eye view" src="{png}"></figure>' if png else "<p>No bev.png.</p>",
         "<h2>Files</h2><ul>" + "".join(f"<li>{link}</li>" for link in links) + "</ul>",
