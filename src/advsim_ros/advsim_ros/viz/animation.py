@@ -62,7 +62,7 @@ class _Panel:
 
 
 def _box(x: float, y: float, yaw: float, length: float, width: float) -> FloatArray:
-    corners: FloatArray = box_corners(np.array([x, y, yaw, length, width]))
+    corners: FloatArray = np.asarray(box_corners(np.array([x, y, yaw, length, width])), dtype=np.float64)
     return corners
 
 
@@ -78,7 +78,8 @@ def _lidar_world(scenario: Scenario, stamp: int, decision_ns: int, max_points: i
     if not sweeps or max_points == 0:
         return np.empty((0, 2))
     sweep = sweeps[-1]
-    xyz = sweep.xyz[:: max(1, sweep.num_points // max_points)]
+    picked = sweep.points[:: max(1, sweep.num_points // max_points)]  # subsample before converting
+    xyz = np.stack([picked[name].astype(np.float64) for name in ("x", "y", "z")], axis=-1)
     world: FloatArray = (xyz @ sweep.sensor_pose[:3, :3].T + sweep.sensor_pose[:3, 3])[:, :2]
     return world
 
@@ -298,12 +299,13 @@ def _draw_panel(
             patch.set_xy(_box(float(x), float(y), float(actor.yaws[i]), actor.length, actor.width))
             patch.set_visible(True)
         frame = index_of[stamp]
-        ego_patch.set_xy(_sdv_box(scenario, *scenario.ego.xy[frame].tolist(), float(scenario.ego.yaws[frame])))
+        ego_x, ego_y = (float(v) for v in scenario.ego.xy[frame])
+        ego_patch.set_xy(_sdv_box(scenario, ego_x, ego_y, float(scenario.ego.yaws[frame])))
         colliding = panel.collision_ns is not None and stamp >= panel.collision_ns
         pose = plan_pose_at(full_plan, stamp) if full_plan is not None and stamp >= decision_ns else None
         planned_patch.set_visible(pose is not None)
         if pose is not None:
-            planned_patch.set_xy(_sdv_box(scenario, *pose))
+            planned_patch.set_xy(_sdv_box(scenario, pose[0], pose[1], pose[2]))
             planned_patch.set_edgecolor("red" if colliding else "tab:orange")
         if colliding and collision_pose is not None and panel.collision_ns is not None:
             seconds = (panel.collision_ns - decision_ns) / NS_PER_S

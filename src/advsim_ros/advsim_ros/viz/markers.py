@@ -132,9 +132,10 @@ class _ArrayBuilder:
         self._next[namespace] = marker_id + 1
         self.markers.append(_marker(self.stamp, self.frame_id, namespace, marker_id, kind, **fields))
 
-    def box(self, namespace: str, center: Sequence[float], yaw: float, size: Sequence[float], color: Rgba) -> None:
+    def box(self, namespace: str, center: Sequence[float], yaw: float, size: FloatArray, color: Rgba) -> None:
         x, y, z = (float(v) for v in center)
-        self.add(namespace, CUBE, pose=_pose(x, y, z, yaw), scale=(size[0], size[1], size[2]), color=color)
+        scale = (float(size[0]), float(size[1]), float(size[2]))
+        self.add(namespace, CUBE, pose=_pose(x, y, z, yaw), scale=scale, color=color)
 
     def label(self, namespace: str, center: Sequence[float], height: float, text: str) -> None:
         pose = _pose(float(center[0]), float(center[1]), float(center[2]) + height / 2.0 + TEXT_HEIGHT, 0.0)
@@ -224,7 +225,8 @@ def scenario_markers(
             if perturbed:
                 actors.line("perturbed_paths", actor.centers, PERTURBED_COLOR)
         ego_yaw = float(scenario.ego.yaws[index])
-        ego_center = _ego_box_center(scenario, *scenario.ego.xy[index], float(ego_z[index]), ego_yaw)
+        ego_x, ego_y = (float(v) for v in scenario.ego.xy[index])
+        ego_center = _ego_box_center(scenario, ego_x, ego_y, float(ego_z[index]), ego_yaw)
         actors.box("sdv_logged", ego_center, ego_yaw, scenario.ego_size, EGO_COLOR)
         actors.label("sdv_labels", ego_center, float(scenario.ego_size[2]), "SDV (logged)")
         extra.append(actors.encoded(ACTORS))

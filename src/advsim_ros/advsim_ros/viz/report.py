@@ -103,15 +103,17 @@ def history_svg(queries: Sequence[Mapping[str, Any]]) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ids, values, failed, reruns = [], [], [], []
+    ids: list[int] = []
+    values: list[float] = []
+    failed: list[bool] = []
     for query in queries:
         score = query.get("score") or {}
         loss = score.get("adversarial_loss")
         ok = score.get("status") == "ok" and loss is not None
-        (reruns if query.get("algorithm") == "rerun" else ids).append(int(query["query_id"]))
         if query.get("algorithm") == "rerun":
-            continue
-        values.append(float(loss) if ok else math.nan)
+            continue  # re-runs repeat a searched query: the history is the search's
+        ids.append(int(query["query_id"]))
+        values.append(float(loss) if ok and loss is not None else math.nan)
         failed.append(not ok)
     figure, axis = plt.subplots(figsize=(7.0, 3.0), dpi=96)
     try:
@@ -178,8 +180,12 @@ def _metric_rows(
         a = (original or {}).get(key)
         b = (adversarial or {}).get(key)
         rows.append([label, unit, number(a, 4), number(b, 4)])
-        numbers = isinstance(a, int | float) and isinstance(b, int | float)
-        worse = numbers and key in ("adversarial_loss", "collision_3s", "collision_5s") and b > a
+        worse = (
+            isinstance(a, int | float)
+            and isinstance(b, int | float)
+            and key in ("adversarial_loss", "collision_3s", "collision_5s")
+            and b > a
+        )
         classes.append(["", "", "", "worse" if worse else ""])
     return rows, classes
 
