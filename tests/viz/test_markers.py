@@ -104,3 +104,30 @@ def test_the_foxglove_layout_and_the_rviz_config_name_only_topics_the_bag_has(at
     assert named - channels == set()
     assert named_rviz - channels == set()
     assert rviz["Visualization Manager"]["Global Options"]["Fixed Frame"] == "world"
+
+
+def test_detections_and_predictions_are_drawn_at_the_decision_frame_when_the_stack_gave_them(attack_out: Path) -> None:
+    from advsim_ros.contract import codec
+    from advsim_ros.core.types import ActorTrack
+
+    scenario = read_scenario_bag(attack_out / "adversarial", load_sweeps=False)
+    decision = int(scenario.frame_stamps_ns[9])
+    present = [a for a in scenario.actors if decision in a.stamps_ns.tolist()]
+    detections = tuple(
+        ActorTrack(a.actor_id, a.actor_class, a.size, a.stamps_ns[i : i + 1], a.centers[i : i + 1], a.yaws[i : i + 1])
+        for a in present
+        for i in [a.stamps_ns.tolist().index(decision)]
+    )
+    predictions = tuple(a for a in present if a.stamps_ns.shape[0] >= 2)
+    plan = bag_plan(attack_out / "adversarial")
+    extra = markers.scenario_markers(scenario, [], markers.StackOutputs(plan, detections, predictions), 9, "world")
+    by_topic = {topic: (stamp, codec.decode(raw, msgtype)) for topic, msgtype, stamp, raw in extra
+                if topic in (markers.DETECTIONS.name, markers.PREDICTIONS.name)}  # fmt: skip
+    stamp, drawn = by_topic[markers.DETECTIONS.name]
+    assert stamp == decision
+    assert len([m for m in drawn.markers if m.ns == "detections"]) == len(detections)
+    stamp, drawn = by_topic[markers.PREDICTIONS.name]
+    assert stamp == decision
+    assert len([m for m in drawn.markers if m.ns == "predictions"]) == len(predictions)
+    without = markers.scenario_markers(scenario, [], markers.StackOutputs(plan), 9, "world")
+    assert {topic for topic, *_ in without} == {markers.ACTORS.name, markers.HUMAN.name, markers.PLAN.name}
