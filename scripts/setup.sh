@@ -36,6 +36,16 @@ if ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then
   [ "$(id -u)" = 0 ] || fail "libusb-1.0-0 is missing and installing it needs root: apt-get install -y libusb-1.0-0"
   apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
+# Debian's chromium and its driver: the test that opens report.html in a real headless browser
+# (tests/viz/test_report_browser.py). Optional: without root, say so and go on (that test then skips).
+if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then
+  if [ "$(id -u)" = 0 ]; then
+    log "installing Debian packages chromium and chromium-driver (the report's browser test)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null
+  else
+    log "chromium is missing and installing it needs root (apt-get install -y chromium chromium-driver); its test will skip"
+  fi
+fi
 
 # 2. Virtual environment with the pinned requirements.
 req_hash=$(hash_of requirements/base.txt requirements/dev.txt)

@@ -14,8 +14,10 @@ ALLOWED = {
     "ros": {"core", "contract", "ros"},
     "stacks": {"core", "contract", "io", "ros", "stacks"},
     "nodes": {"core", "contract", "io", "ros", "nodes"},
-    "attack": {"core", "contract", "io", "ros", "nodes", "attack"},
+    "attack": {"core", "contract", "io", "ros", "nodes", "viz", "attack"},
     "labelling": {"core", "contract", "io", "stacks", "labelling"},
+    "viz": {"core", "contract", "io", "viz"},
+    "export": {"core", "contract", "io", "viz", "export"},
 }
 
 

@@ -40,6 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_synth_commands(subparsers)
     _add_attack_commands(subparsers)
     _add_stack_commands(subparsers)
+    # issue 17: `advsim report OUTDIR` and `advsim export openscenario BAG -o FILE`
+    from advsim_ros.export.command import add_export_commands
+    from advsim_ros.viz.command import add_viz_commands
+
+    add_viz_commands(subparsers)
+    add_export_commands(subparsers)
     return parser
 
 

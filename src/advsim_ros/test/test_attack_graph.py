@@ -162,3 +162,20 @@ def test_cli_attack_on_the_reference_stack_prints_where_the_outputs_are(
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stack"]["name"] == "modular_stack"
     assert [q["score"]["status"] for q in summary["queries"]] == ["ok"] * 4
+
+
+@pytest.mark.slow
+def test_the_attack_writes_markers_an_animated_bev_and_a_report_and_its_bag_exports_to_openscenario(
+    reference_attack: tuple[Path, dict[str, Any]], tmp_path: Path
+) -> None:
+    from advsim_ros.export.openscenario import export_openscenario, perturbed_entities
+
+    out, summary = reference_attack
+    counts = _mcap_messages(out / "adversarial")  # decoded by the independent mcap reader
+    assert counts["/advsim/markers/actors"] == counts["/advsim/markers/human"] == 60
+    assert counts["/advsim/markers/plan"] == 51  # from the decision frame on
+    assert summary["outputs"]["report"] == str(out.resolve() / "report.html")
+    assert 0 < (out / "bev.gif").stat().st_size < 3_000_000
+    assert "data:image/gif;base64," in (out / "report.html").read_text()
+    exported = export_openscenario(out / "adversarial", tmp_path / "scenario.xosc")
+    assert perturbed_entities(exported.path) == set(summary["perturbed_actors"])

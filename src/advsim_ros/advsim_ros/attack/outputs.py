@@ -111,6 +111,12 @@ def write_outputs(
     draw_bev(
         out_dir / "bev.png", scenario, adversarial, (original_plan, final.plan if final else None), window, summary
     )
+    # issue 17 (advsim_ros.viz): bev.gif and report.html from the bag and summary just written
+    if summary["outputs"].get("adversarial_bag"):
+        from advsim_ros.viz.outputs import write_viz_outputs
+
+        summary["outputs"].update(write_viz_outputs(out_dir, summary))
+        write_json_atomically(out_dir / "summary.json", summary)
     return summary
 
 
@@ -198,6 +204,12 @@ def _write_adversarial_bag(
         extra.append(
             (topics.PLAN.name, names.PATH, decision, codec.encode(path_msg(recorded.plan, decision, bag.world_frame)))
         )
+    # issue 17 (advsim_ros.viz): MarkerArrays for Foxglove and RViz on /advsim/markers/*
+    from advsim_ros.viz.markers import StackOutputs, scenario_markers
+
+    extra += scenario_markers(
+        adversarial, recorded.actor_ids, StackOutputs(recorded.plan), window.decision_index, bag.world_frame
+    )
     write_scenario_bag(
         adversarial, out_dir / ADVERSARIAL_BAG, config=bag, source=f"advsim attack of {checked.bag}", overwrite=True,
         extra=extra,

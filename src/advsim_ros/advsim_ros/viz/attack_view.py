@@ -1,0 +1,158 @@
+"""What an attack's outputs say, gathered once for drawing: the adversarial bag, summary.json, the original window.
+
+Inputs are explicit: the adversarial scenario bag (OUTDIR/adversarial) and the summary (a dict
+or the path of summary.json). The original window comes from the source bag the summary names
+and the stack's original plan from the journal it names (OUTDIR/queries.jsonl); either may be
+gone (a copied OUTDIR), and then the original side is drawn without it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from advsim_ros.contract import names, topics
+from advsim_ros.contract.plan import plan_from_path
+from advsim_ros.contract.protocol import perturbation_from_msg
+from advsim_ros.core.curation import crop_frames
+from advsim_ros.core.episode import WindowConfig
+from advsim_ros.core.journal import read_records
+from advsim_ros.core.metrics import MetricsConfig
+from advsim_ros.core.types import Plan, Scenario, ScenarioError
+from advsim_ros.io.bag import BagReader, read_scenario_bag
+from advsim_ros.viz.markers import first_collision_ns
+
+
+def load_summary(summary: Mapping[str, Any] | Path) -> dict[str, Any]:
+    """The summary as a dict: given, or read from summary.json (ScenarioError naming the file when unreadable)."""
+    if isinstance(summary, Mapping):
+        return dict(summary)
+    try:
+        loaded = json.loads(Path(summary).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as error:
+        raise ScenarioError(f"cannot read the attack summary {summary}: {error}") from None
+    if not isinstance(loaded, dict) or "scenario" not in loaded:
+        raise ScenarioError(f"{summary} is not an attack's summary.json (no 'scenario' key)")
+    return loaded
+
+
+def bag_plan(bag: Path) -> Plan | None:
+    """The stack's plan recorded in an adversarial bag (/planning/trajectory), None when it has none."""
+    with BagReader(bag) as reader:
+        connection = reader.connection(topics.PLAN.name, names.PATH)
+        if connection is None:
+            return None
+        for _, _, path in reader.messages([connection]):
+            return plan_from_path(path)
+    return None
+
+
+def bag_perturbed_ids(bag: Path) -> tuple[str, ...]:
+    """The perturbed actors named by an adversarial bag's /advsim/perturbation (empty when it has none)."""
+    with BagReader(bag) as reader:
+        connection = reader.connection(topics.PERTURBATION.name, names.PERTURBATION)
+        if connection is None:
+            return ()
+        for _, _, value in reader.messages([connection]):
+            return tuple(perturbation_from_msg(value).actor_ids)
+    return ()
+
+
+@dataclass(frozen=True, eq=False)
+class AttackView:
+    """One attack's outcome, original vs adversarial, over the attacked window (log time)."""
+
+    summary: dict[str, Any]
+    bag: Path  # the adversarial scenario bag
+    adversarial: Scenario  # the adversarial bag: the window, perturbed actors, the LiDAR the stack saw
+    original: Scenario | None  # the same window of the source bag (logged actors and LiDAR); None when it is gone
+    perturbed_ids: tuple[str, ...]
+    adversarial_plan: Plan | None  # the stack's plan of the decision frame in the recorded query
+    original_plan: Plan | None  # the stack's plan of the decision frame on the original log (query 0)
+    decision_index: int  # frame of the window the stack planned from (its last LiDAR sweep)
+    adversarial_collision_ns: int | None  # log time of the first collision of the SDV on its plan [ns]
+    original_collision_ns: int | None
+
+    @property
+    def decision_ns(self) -> int:
+        return int(self.adversarial.frame_stamps_ns[self.decision_index])
+
+
+def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView:
+    """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path)."""
+    values = load_summary(summary)
+    bag = Path(bag)
+    adversarial = read_scenario_bag(bag, load_sweeps=True)
+    scenario = values["scenario"]
+    window = WindowConfig(
+        window_start_frame=int(scenario["window_start_frame"]),
+        history_frames=int(scenario["history_frames"]),
+        future_frames=int(scenario["future_frames"]),
+    )
+    if adversarial.num_frames != window.num_frames:
+        raise ScenarioError(
+            f"{bag} has {adversarial.num_frames} frames but the summary's window has {window.num_frames}: "
+            "not the adversarial bag of this summary"
+        )
+    perturbed = tuple(values.get("perturbed_actors") or ()) or bag_perturbed_ids(bag)
+    original = _original_window(Path(scenario["bag"]), window, adversarial)
+    original_plan = _original_plan(values)
+    adversarial_plan = bag_plan(bag)
+    decision = window.decision_index
+    config = MetricsConfig(ego_forward_offset=adversarial.ego_forward_offset)
+    return AttackView(
+        summary=values,
+        bag=bag,
+        adversarial=adversarial,
+        original=original,
+        perturbed_ids=perturbed,
+        adversarial_plan=adversarial_plan,
+        original_plan=original_plan,
+        decision_index=decision,
+        adversarial_collision_ns=(
+            first_collision_ns(adversarial, adversarial_plan, decision, config) if adversarial_plan else None
+        ),
+        original_collision_ns=(
+            first_collision_ns(original, original_plan, decision, config) if original and original_plan else None
+        ),
+    )
+
+
+def _original_window(source: Path, window: WindowConfig, adversarial: Scenario) -> Scenario | None:
+    """The attacked window of the source bag, when it is still there and is the same log."""
+    if not (source / "metadata.yaml").is_file():
+        return None
+    log = read_scenario_bag(source, load_sweeps=True)
+    frames = window.frame_indices(log.num_frames)
+    cropped = crop_frames(log, frames.start, frames.stop - 1)
+    if not np.array_equal(cropped.frame_stamps_ns, adversarial.frame_stamps_ns):
+        return None  # the source bag was replaced by another log
+    return cropped
+
+
+def _original_plan(summary: Mapping[str, Any]) -> Plan | None:
+    """Query 0's plan from the journal the summary names (None when the journal is gone or has no plan)."""
+    journal = Path(str((summary.get("outputs") or {}).get("journal", "")))
+    if not journal.is_file():
+        return None
+    for record in read_records(journal):
+        if record.query_id == 0:
+            return record.plan
+    return None
+
+
+def number(value: Any, digits: int = 3) -> str:
+    """A summary value for people: 'n/a' for missing or NaN, else `digits` significant figures."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int | float):
+        return f"{value:.{digits}g}"
+    return str(value)

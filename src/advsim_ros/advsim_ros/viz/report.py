@@ -1,0 +1,317 @@
+"""OUTDIR/report.html: one self-contained page per attack (inline CSS, JS and images; nothing fetched).
+
+It shows the scenario and the stack, the perturbed actors (logged vs perturbed start, speed and
+how far their paths moved), the query history (L_adv of every query and the best so far), the
+original vs adversarial metrics with the terms of L_adv, the re-runs of the best query, the
+animated bird's-eye view (bev.gif) and the still one (bev.png), and relative links to the bag,
+summary.json and the journal with the commands that replay and export the scenario.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from advsim_ros.contract.tracks import TrackRecord
+from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.types import ActorTrack
+from advsim_ros.viz.attack_view import AttackView, number
+
+# (key in a QueryScore JSON object, label, unit): the rows of the metrics table
+METRIC_ROWS: tuple[tuple[str, str, str], ...] = (
+    ("status", "status", ""),
+    ("adversarial_loss", "L_adv (higher: more safety-critical)", "1"),
+    ("imitation_loss", "  imitation term l_IL", "m"),
+    ("collision_loss", "  collision term", "1"),
+    ("comfort_loss", "  comfort / rule term", "1"),
+    ("collision_3s", "collision within 3 s", "1"),
+    ("collision_5s", "collision within 5 s", "1"),
+    ("l2_human_3s", "L2 to the human trajectory at 3 s", "m"),
+    ("l2_human_5s", "L2 to the human trajectory at 5 s", "m"),
+    ("lateral_acceleration", "max lateral acceleration", "m/s²"),
+    ("jerk", "max longitudinal jerk", "m/s³"),
+    ("detection_ap", "detection AP (BEV IoU 0.7)", "1"),
+    ("prediction_l2_3s", "prediction L2 at 3 s", "m"),
+    ("prediction_l2_5s", "prediction L2 at 5 s", "m"),
+    ("sweeps_delivered", "sweeps delivered", "1"),
+    ("plans_received", "plans received", "1"),
+)
+
+_CSS = """
+body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2rem auto; max-width: 72rem;
+       color: #1d2327; padding: 0 1rem; }
+h1 { font-size: 1.5rem; margin-bottom: .2rem; } h2 { font-size: 1.15rem; margin-top: 2rem;
+     border-bottom: 1px solid #ccd0d4; padding-bottom: .2rem; }
+table { border-collapse: collapse; margin: .5rem 0; font-size: .9rem; }
+th, td { border: 1px solid #dcdcde; padding: .25rem .6rem; text-align: right; }
+th:first-child, td:first-child { text-align: left; white-space: pre; }
+thead th { background: #f0f0f1; }
+.worse { background: #fde8e8; font-weight: 600; } .verdict { font-size: 1.1rem; padding: .6rem 1rem;
+         border-radius: .3rem; background: #f0f6fc; display: inline-block; }
+.verdict.fail { background: #fde8e8; color: #8a1f11; }
+figure { margin: .5rem 0; } img { max-width: 100%; border: 1px solid #dcdcde; }
+code { background: #f6f7f7; padding: .05rem .3rem; border-radius: .2rem; }
+.muted { color: #646970; font-size: .85rem; } button { font-size: .85rem; margin: .3rem 0; }
+"""
+
+_JS = """
+document.querySelectorAll('button[data-toggle]').forEach(function (button) {
+  var target = document.getElementById(button.getAttribute('data-toggle'));
+  button.addEventListener('click', function () {
+    var hidden = target.hasAttribute('hidden');
+    if (hidden) { target.removeAttribute('hidden'); } else { target.setAttribute('hidden', ''); }
+    button.textContent = (hidden ? 'hide ' : 'show ') + button.getAttribute('data-label');
+  });
+});
+document.body.setAttribute('data-ready', 'yes');
+"""
+
+
+def _e(value: Any) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def _data_uri(path: Path, mime: str) -> str | None:
+    if not path.is_file():
+        return None
+    return f"data:{mime};base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]], classes: Sequence[Sequence[str]] | None = None) -> str:
+    head = "".join(f"<th>{_e(cell)}</th>" for cell in header)
+    body = []
+    for r, row in enumerate(rows):
+        cells = []
+        for c, cell in enumerate(row):
+            css = classes[r][c] if classes is not None else ""
+            cells.append(f'<td class="{css}">{_e(cell)}</td>' if css else f"<td>{_e(cell)}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def history_svg(queries: Sequence[Mapping[str, Any]]) -> str:
+    """The query history as inline SVG: L_adv of every query (failed ones at the bottom) and the best so far."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ids: list[int] = []
+    values: list[float] = []
+    failed: list[bool] = []
+    for query in queries:
+        score = query.get("score") or {}
+        loss = score.get("adversarial_loss")
+        ok = score.get("status") == "ok" and loss is not None
+        if query.get("algorithm") == "rerun":
+            continue  # re-runs repeat a searched query: the history is the search's
+        ids.append(int(query["query_id"]))
+        values.append(float(loss) if ok and loss is not None else math.nan)
+        failed.append(not ok)
+    figure, axis = plt.subplots(figsize=(7.0, 3.0), dpi=96)
+    try:
+        array = np.array(values, dtype=np.float64)
+        best = np.fmax.accumulate(np.where(np.isnan(array), -np.inf, array)) if array.size else array
+        best = np.where(np.isinf(best), np.nan, best)
+        axis.plot(ids, array, "o", color="tab:blue", ms=4, label="L_adv of the query")
+        axis.step(ids, best, where="post", color="tab:red", lw=2, label="best so far")
+        if any(failed):
+            floor = np.nanmin(array) if np.any(np.isfinite(array)) else 0.0
+            axis.plot([i for i, f in zip(ids, failed, strict=True) if f], [floor] * sum(failed), "x", color="0.3",
+                      label="failed query")  # fmt: skip
+        axis.set_xlabel("query (0 = the original log)")
+        axis.set_ylabel("L_adv")
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+        figure.tight_layout()
+        buffer = io.StringIO()
+        figure.savefig(buffer, format="svg")
+    finally:
+        plt.close(figure)
+    text = buffer.getvalue()
+    return text[text.index("<svg") :]  # drop the XML prologue: the SVG is inlined in HTML
+
+
+def _actor_rows(view: AttackView) -> list[list[str]]:
+    rows = []
+    for actor_id in view.perturbed_ids:
+        try:
+            moved = view.adversarial.actor(actor_id)
+        except KeyError:
+            continue
+        logged: ActorTrack | None = None
+        if view.original is not None:
+            try:
+                logged = view.original.actor(actor_id)
+            except KeyError:
+                logged = None
+        speed = TrackRecord.from_actor_track(moved).velocity
+        row = [actor_id, moved.actor_class.value, "×".join(f"{v:.1f}" for v in moved.size)]
+        row.append(f"{moved.centers[0, 0]:.1f}, {moved.centers[0, 1]:.1f}")
+        row.append(f"{speed[0]:.1f}")
+        if logged is not None:
+            logged_speed = TrackRecord.from_actor_track(logged).velocity
+            common = np.intersect1d(logged.stamps_ns, moved.stamps_ns)
+            shift = np.linalg.norm(
+                moved.centers[np.isin(moved.stamps_ns, common), :2]
+                - logged.centers[np.isin(logged.stamps_ns, common), :2],
+                axis=1,
+            )
+            row += [f"{logged.centers[0, 0]:.1f}, {logged.centers[0, 1]:.1f}", f"{logged_speed[0]:.1f}"]
+            row.append(f"{shift.max():.2f}" if shift.size else "n/a")
+        else:
+            row += ["n/a", "n/a", "n/a"]
+        rows.append(row)
+    return rows
+
+
+def _metric_rows(
+    original: Mapping[str, Any] | None, adversarial: Mapping[str, Any] | None
+) -> tuple[list[list[str]], list[list[str]]]:
+    rows, classes = [], []
+    for key, label, unit in METRIC_ROWS:
+        a = (original or {}).get(key)
+        b = (adversarial or {}).get(key)
+        rows.append([label, unit, number(a, 4), number(b, 4)])
+        worse = (
+            isinstance(a, int | float)
+            and isinstance(b, int | float)
+            and key in ("adversarial_loss", "collision_3s", "collision_5s")
+            and b > a
+        )
+        classes.append(["", "", "", "worse" if worse else ""])
+    return rows, classes
+
+
+def _verdict(view: AttackView) -> tuple[str, bool]:
+    adversarial = view.summary.get("adversarial") or {}
+    original = view.summary.get("original") or {}
+    if adversarial.get("collision_5s") == 1.0 and view.adversarial_collision_ns is not None:
+        seconds = (view.adversarial_collision_ns - view.decision_ns) / 1e9
+        before = "collides too" if original.get("collision_5s") == 1.0 else "no collision"
+        return f"The stack's plan collides {seconds:.1f} s after the decision in the adversarial scenario "\
+            f"(original: {before}).", True  # fmt: skip
+    if adversarial.get("collision_5s") == 1.0:
+        return "The stack's plan collides within 5 s in the adversarial scenario.", True
+    return (
+        f"No collision found; L_adv {number(original.get('adversarial_loss'))} (original) -> "
+        f"{number(adversarial.get('adversarial_loss'))} (adversarial).",
+        False,
+    )
+
+
+def render_report(view: AttackView, out_dir: Path) -> str:
+    """The report page as HTML text; images are read from ``out_dir`` (bev.gif, bev.png) and inlined."""
+    summary = view.summary
+    scenario = summary.get("scenario", {})
+    stack = summary.get("stack", {})
+    search = summary.get("search", {})
+    verdict, failed = _verdict(view)
+    gif = _data_uri(out_dir / "bev.gif", "image/gif")
+    png = _data_uri(out_dir / "bev.png", "image/png")
+    metric_rows, metric_classes = _metric_rows(summary.get("original"), summary.get("adversarial"))
+    queries = summary.get("queries") or []
+    query_rows = []
+    for query in queries:
+        score = query.get("score") or {}
+        query_rows.append([
+            str(query.get("query_id")), str(query.get("algorithm")), str(score.get("status")),
+            number(score.get("adversarial_loss"), 4), number(score.get("collision_5s")),
+            number(score.get("l2_human_5s")),
+            ", ".join(query.get("actor_ids") or []) or "-",
+        ])  # fmt: skip
+    reproductions = [
+        [str(item.get("query_id")), ", ".join(str(v) for v in item.get("rerun_query_ids", [])),
+         ", ".join(number(v, 6) for v in item.get("adversarial_losses", [])), number(item.get("spread")),
+         number(item.get("reproduced")), number(item.get("inputs_identical")), number(item.get("plans_identical"))]
+        for item in summary.get("reproductions") or []
+    ]  # fmt: skip
+    bag_name = view.bag.name
+    mcaps = sorted(view.bag.glob("*.mcap"))
+    links = [f'<a href="{_e(bag_name)}/">{_e(bag_name)}/</a> (the scenario bag)']
+    links += [
+        f'<a href="{_e(bag_name)}/{_e(m.name)}">{_e(bag_name)}/{_e(m.name)}</a> (open in Foxglove)' for m in mcaps
+    ]
+    links += [f'<a href="{name}">{name}</a>' for name in ("summary.json", "queries.jsonl", "bev.png", "bev.gif")
+              if (out_dir / name).is_file()]  # fmt: skip
+    perturbed = _actor_rows(view)
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        '<link rel="icon" href="data:,">',  # no favicon request
+        f"<title>advsim attack: {_e(scenario.get('scenario_id', ''))}</title>",
+        f"<style>{_CSS}</style></head><body>",
+        f"<h1>Attack on {_e(stack.get('name', 'the stack'))}: {_e(scenario.get('scenario_id', ''))}</h1>",
+        f'<p class="muted">source bag <code>{_e(scenario.get("bag", ""))}</code>, window from frame '
+        f"{_e(scenario.get('window_start_frame'))} ({_e(scenario.get('history_frames'))} history + "
+        f"{_e(scenario.get('future_frames'))} future frames); search <code>{_e(search.get('algorithm'))}</code>, "
+        f"{_e(search.get('queries'))} queries, seed {_e(search.get('seed'))}; wall time "
+        f"{number(summary.get('wall_time_s'))} s</p>",
+        f'<p class="verdict{" fail" if failed else ""}" id="verdict">{_e(verdict)}</p>',
+        "<h2>Bird's-eye view, original vs adversarial</h2>",
+        f'<figure><img id="bev-animation" alt="animated bird\'s-eye view" src="{gif}"></figure>'
+        if gif
+        else '<p class="muted">bev.gif was not written.</p>',
+        '<p class="muted">Red: perturbed actors (dashed: their paths); blue: other actors; green: the SDV as logged '
+        "and "
+        "the human trajectory; orange: the stack's plan of the decision frame and the SDV following it (red star: "
+        "the first collision); grey: the LiDAR the stack saw (history, then the decision sweep).</p>",
+        "<h2>Original vs adversarial</h2>",
+        _table(["metric", "unit", "original", "adversarial"], metric_rows, metric_classes),
+        '<p class="muted">L_adv = imitation term + collision term + comfort term (weights in params/scorer.yaml); '
+        "adversarial = the recorded query (the last re-run of the best).</p>",
+        "<h2>Perturbed actors</h2>",
+        _table(
+            [
+                "actor",
+                "class",
+                "size l×w×h [m]",
+                "perturbed start x, y [m]",
+                "perturbed speed [m/s]",
+                "logged start x, y [m]",
+                "logged speed [m/s]",
+                "max shift [m]",
+            ],
+            perturbed,
+        )
+        if perturbed
+        else '<p class="muted">No actor was perturbed.</p>',
+        "<h2>Query history</h2>",
+        f'<figure id="history">{history_svg(queries)}</figure>' if queries else "<p>No query finished.</p>",
+        '<button data-toggle="queries" data-label="every query">show every query</button>',
+        '<div id="queries" hidden>'
+        + _table(["query", "algorithm", "status", "L_adv", "collision@5s", "L2@5s [m]", "actors"], query_rows)
+        + "</div>",
+        "<h2>Re-runs of the best</h2>",
+        _table(
+            ["query", "re-runs", "L_adv of each", "spread", "reproduced", "inputs identical", "plans identical"],
+            reproductions,
+        )
+        if reproductions
+        else '<p class="muted">No re-runs.</p>',
+        "<h2>Still view</h2>",
+        f'<figure><img id="bev-still" alt="bird\'s-eye view" src="{png}"></figure>' if png else "<p>No bev.png.</p>",
+        "<h2>Files</h2><ul>" + "".join(f"<li>{link}</li>" for link in links) + "</ul>",
+        f"<p>Replay it against the stack: <code>advsim replay {_e(view.bag)} --stack ... --check</code>; as "
+        f"OpenSCENARIO: <code>advsim export openscenario {_e(view.bag)} -o scenario.xosc</code>; in Foxglove: open the "
+        ".mcap file and import <code>docs/foxglove/advsim.json</code>; in RViz2: <code>ros2 bag play</code> the bag "
+        "with <code>rviz2 -d docs/rviz/advsim.rviz</code>.</p>",
+        f"<script>{_JS}</script>",
+        "</body></html>",
+    ]
+    return "\n".join(parts)
+
+
+def write_report(view: AttackView, out_dir: Path) -> Path:
+    """Write OUTDIR/report.html atomically; return its path."""
+    path = Path(out_dir) / "report.html"
+    write_text_atomically(path, render_report(view, Path(out_dir)))
+    return path

@@ -1,0 +1,75 @@
+"""report.html in a real headless Chromium (Debian's chromium + chromedriver, driven by selenium).
+
+It must render without console errors, run its script, show its images, and fetch nothing: every
+image is inline. Skips only when chromium or chromedriver is absent (scripts/setup.sh installs
+them when it runs as root).
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from advsim_ros.viz.outputs import write_viz_outputs
+
+CHROMIUM_FLAGS = (
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--window-size=1200,2400",
+)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def report(attack_out: Path) -> Path:
+    written = write_viz_outputs(attack_out)
+    return Path(written["report"])
+
+
+def test_the_report_is_self_contained(report: Path) -> None:
+    text = report.read_text()
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text)  # nothing from the network
+    assert "<script src" not in text
+    assert '<link rel="stylesheet"' not in text
+    assert text.count("data:image/gif;base64,") == 1
+
+
+def test_the_report_renders_in_headless_chromium_without_console_errors(report: Path, tmp_path: Path) -> None:
+    chromium, driver_path = shutil.which("chromium"), shutil.which("chromedriver")
+    if chromium is None or driver_path is None:
+        pytest.skip("Debian's chromium and chromium-driver are not installed (make setup installs them as root)")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for flag in (*CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(options=options, service=Service(executable_path=driver_path))
+    try:
+        driver.set_page_load_timeout(60)
+        driver.get(report.as_uri())
+        assert driver.execute_script("return document.readyState") == "complete"
+        assert driver.execute_script("return document.body.getAttribute('data-ready')") == "yes"  # the script ran
+        sizes = driver.execute_script(
+            "return Array.from(document.images).map(function (i) { return [i.id, i.complete, i.naturalWidth]; })"
+        )
+        assert ["bev-animation", True, 720] in sizes
+        assert driver.execute_script("return document.querySelectorAll('#history svg').length") == 1
+        assert "collides" in driver.find_element("id", "verdict").text
+        driver.find_element("css selector", "button[data-toggle='queries']").click()
+        assert driver.execute_script("return document.getElementById('queries').hasAttribute('hidden')") is False
+        errors = [entry for entry in driver.get_log("browser") if entry["level"] in ("SEVERE", "ERROR")]
+        assert errors == []
+        shot = Image.open(io.BytesIO(driver.get_screenshot_as_png())).convert("RGB")
+    finally:
+        driver.quit()
+    pixels = np.asarray(shot).reshape(-1, 3)
+    assert shot.size[0] >= 800
+    assert pixels.std(axis=0).max() > 20  # not a blank page
+    assert len(np.unique(pixels[::7], axis=0)) > 200  # text, tables and the figures, not a flat colour
