@@ -54,7 +54,7 @@ def _perturbed(window: Scenario, actor: ActorTrack) -> ActorTrack:
     index = np.minimum(np.arange(window.num_frames) + 25, STOP_FRAME)
     yaws = window.ego.yaws[index]
     size = np.array([4.5, 1.9, 1.6])
-    ahead = window.ego_forward_offset  # the SDV's box centre, where the actor's centre goes
+    ahead = window.ego_geometry.forward_offset  # the SDV's box centre, where the actor's centre goes
     centers = np.column_stack([
         window.ego.xy[index, 0] + ahead * np.cos(yaws), window.ego.xy[index, 1] + ahead * np.sin(yaws),
         window.ego.poses[index, 2, 3] + size[2] / 2.0,
@@ -95,7 +95,7 @@ def attack_out(kitti_scenario: Scenario, tmp_path_factory: pytest.TempPathFactor
     adversarial = Scenario(
         scenario_id=f"{window.scenario_id}/adversarial", frame_stamps_ns=window.frame_stamps_ns, ego=window.ego,
         actors=replace_actors(window.actors, moved), sweeps=window.sweeps[:HISTORY], ego_T_sensor=window.ego_T_sensor,
-        sensor=window.sensor, ego_size=window.ego_size, ego_forward_offset=window.ego_forward_offset,
+        sensor=window.sensor, ego_geometry=window.ego_geometry,
         sensor_frame=window.sensor_frame,
     )  # fmt: skip
     decision_ns = int(window.frame_stamps_ns[DECISION])

@@ -72,9 +72,7 @@ def test_markers_draw_every_frame_with_the_perturbed_actor_highlighted_and_the_c
     # the SDV's planned box turns red from the first collision on, which is where the scorer saw it
     plan = bag_plan(bag)
     assert plan is not None
-    collision = markers.first_collision_ns(
-        scenario, plan, 9, MetricsConfig(ego_forward_offset=scenario.ego_forward_offset)
-    )
+    collision = markers.first_collision_ns(scenario, plan, 9, MetricsConfig())
     score = json.loads((attack_out / "summary.json").read_text())["adversarial"]
     assert score["collision_5s"] == 1.0
     assert collision is not None

@@ -15,7 +15,7 @@ What is written (docs/outputs.md, "OpenSCENARIO"):
   frame [m, rad]. The ego's is its logged (human) trajectory; perturbed actors' are their
   perturbed trajectories, the others as logged. The storyboard stops at the last frame's time.
 - Reference points as OpenSCENARIO defines them: the ego's is the ego frame's origin (below the
-  rear axle), its bounding box ``ego_forward_offset`` ahead; an actor's is its box centre on the
+  rear axle), its bounding box ``ego_geometry.forward_offset`` ahead; an actor's is its box centre on the
   ground (box centre z - height / 2), its bounding box centred above it.
 - No road network: logs without a map have none, and a LogicFile is not written. An Argoverse 2
   map would need a converter from its lane graph to OpenDRIVE (see docs/outputs.md).
@@ -238,7 +238,8 @@ def scenario_xml(scenario: Scenario, perturbed_ids: Sequence[str], config: Expor
     )
     step = xosc.TransitionDynamics(xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0.0)
     rows: list[tuple[str, ActorClass, Sequence[float], float, IntArray, FloatArray]] = [
-        (EGO, ActorClass.VEHICLE, scenario.ego_size.tolist(), scenario.ego_forward_offset, scenario.frame_stamps_ns,
+        (EGO, ActorClass.VEHICLE, scenario.ego_geometry.size.tolist(), scenario.ego_geometry.forward_offset,
+         scenario.frame_stamps_ns,
          _ego_reference(scenario)),
     ]  # fmt: skip
     rows += [

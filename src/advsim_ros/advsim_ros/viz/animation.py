@@ -11,7 +11,6 @@ draws the frames (blitting the static background) and Pillow writes the GIF.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -67,8 +66,8 @@ def _box(x: float, y: float, yaw: float, length: float, width: float) -> FloatAr
 
 
 def _sdv_box(scenario: Scenario, x: float, y: float, yaw: float) -> FloatArray:
-    offset = scenario.ego_forward_offset
-    return _box(x + offset * math.cos(yaw), y + offset * math.sin(yaw), yaw, *scenario.ego_size[:2].tolist())
+    box = scenario.ego_geometry.boxes(np.array([x, y]), np.array(yaw))
+    return _box(*box.tolist())
 
 
 def _lidar_world(scenario: Scenario, stamp: int, decision_ns: int, max_points: int) -> FloatArray:

@@ -105,7 +105,7 @@ def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView
     original_plan = _original_plan(values)
     adversarial_plan = bag_plan(bag)
     decision = window.decision_index
-    config = MetricsConfig(ego_forward_offset=adversarial.ego_forward_offset)
+    config = MetricsConfig()
     return AttackView(
         summary=values,
         bag=bag,

@@ -161,7 +161,7 @@ def first_collision_ns(scenario: Scenario, plan: Plan, decision_index: int, conf
     decision_ns = int(scenario.frame_stamps_ns[decision_index])
     full = plan_from_decision(plan, scenario.ego.poses[decision_index], decision_ns)
     futures: ActorFutures = actor_futures_at(scenario.actors, full.stamps_ns)
-    colliding = collision_steps(full, futures, scenario.ego_size, config)
+    colliding = collision_steps(full, futures, scenario.ego_geometry, config)
     return int(full.stamps_ns[int(np.argmax(colliding))]) if np.any(colliding) else None
 
 
@@ -177,9 +177,13 @@ def plan_pose_at(plan: Plan, stamp: int) -> tuple[float, float, float] | None:
 
 
 def _ego_box_center(scenario: Scenario, x: float, y: float, z: float, yaw: float) -> tuple[float, float, float]:
-    """Centre of the SDV's box for the ego frame at (x, y, z, yaw): ego_forward_offset ahead, standing on the ground."""
-    offset = scenario.ego_forward_offset
-    return (x + offset * math.cos(yaw), y + offset * math.sin(yaw), z + float(scenario.ego_size[2]) / 2.0)
+    """Centre of the SDV's box for the ego frame at (x, y, z, yaw): its forward offset ahead, standing on the ground."""
+    ego = scenario.ego_geometry
+    return (
+        x + ego.forward_offset * math.cos(yaw),
+        y + ego.forward_offset * math.sin(yaw),
+        z + float(ego.size[2]) / 2.0,
+    )
 
 
 def scenario_markers(
@@ -193,10 +197,9 @@ def scenario_markers(
     """MarkerArrays of every frame of ``scenario`` (an attacked window) as (topic, type, stamp [ns], CDR) tuples.
 
     ``decision_index`` is the frame (index into the scenario) the stack planned from; ``metrics``
-    sets the collision test that colours the SDV's planned box (default: the scorer's defaults,
-    with the scenario's ego forward offset).
+    sets the collision test that colours the SDV's planned box (default: the scorer's defaults).
     """
-    config = metrics or MetricsConfig(ego_forward_offset=scenario.ego_forward_offset)
+    config = metrics or MetricsConfig()
     moved = set(perturbed_ids)
     plan = outputs.plan
     collision_ns = first_collision_ns(scenario, plan, decision_index, config) if plan is not None else None
@@ -227,8 +230,8 @@ def scenario_markers(
         ego_yaw = float(scenario.ego.yaws[index])
         ego_x, ego_y = (float(v) for v in scenario.ego.xy[index])
         ego_center = _ego_box_center(scenario, ego_x, ego_y, float(ego_z[index]), ego_yaw)
-        actors.box("sdv_logged", ego_center, ego_yaw, scenario.ego_size, EGO_COLOR)
-        actors.label("sdv_labels", ego_center, float(scenario.ego_size[2]), "SDV (logged)")
+        actors.box("sdv_logged", ego_center, ego_yaw, scenario.ego_geometry.size, EGO_COLOR)
+        actors.label("sdv_labels", ego_center, float(scenario.ego_geometry.size[2]), "SDV (logged)")
         extra.append(actors.encoded(ACTORS))
 
         trajectory = _ArrayBuilder(stamp, frame_id)
@@ -244,10 +247,14 @@ def scenario_markers(
                 colliding = collision_ns is not None and stamp >= collision_ns
                 center = _ego_box_center(scenario, pose[0], pose[1], float(ego_z[decision_index]), pose[2])
                 planned.box(
-                    "sdv_planned", center, pose[2], scenario.ego_size, COLLISION_COLOR if colliding else PLAN_COLOR
+                    "sdv_planned",
+                    center,
+                    pose[2],
+                    scenario.ego_geometry.size,
+                    COLLISION_COLOR if colliding else PLAN_COLOR,
                 )
                 text = "SDV on its plan" + (" - COLLISION" if colliding else "")
-                planned.label("sdv_planned_labels", center, float(scenario.ego_size[2]), text)
+                planned.label("sdv_planned_labels", center, float(scenario.ego_geometry.size[2]), text)
             extra.append(planned.encoded(PLAN))
     extra.extend(_stack_perception(outputs, decision_ns, frame_id))
     return extra
