@@ -111,8 +111,8 @@ def write_outputs(
     draw_bev(
         out_dir / "bev.png", scenario, adversarial, (original_plan, final.plan if final else None), window, summary
     )
-    # issue 17 (advsim_ros.viz): bev.gif and report.html from the bag and summary just written
-    if summary["outputs"].get("adversarial_bag"):
+    # bev.gif and report.html from the bag and summary just written (`advsim report OUTDIR` draws them later)
+    if options.visual_report and summary["outputs"].get("adversarial_bag"):
         from advsim_ros.viz.outputs import write_viz_outputs
 
         summary["outputs"].update(write_viz_outputs(out_dir, summary))
@@ -204,7 +204,7 @@ def _write_adversarial_bag(
         extra.append(
             (topics.PLAN.name, names.PATH, decision, codec.encode(path_msg(recorded.plan, decision, bag.world_frame)))
         )
-    # issue 17 (advsim_ros.viz): MarkerArrays for Foxglove and RViz on /advsim/markers/*
+    # MarkerArrays for Foxglove and RViz on /advsim/markers/* (advsim_ros.viz)
     from advsim_ros.viz.markers import StackOutputs, scenario_markers
 
     extra += scenario_markers(
