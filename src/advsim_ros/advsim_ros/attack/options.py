@@ -117,7 +117,7 @@ class AttackOptions:
     parameter_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)  # node -> {param: value}
     replay_only: bool = False  # `advsim replay`: score the bag's own scenario, no search, nothing moved
     replay_runs: int = 1  # `advsim replay`: how many times
-    visual_report: bool = True  # draw bev.gif and report.html (a few seconds; campaigns may leave them to `advsim report`)
+    visual_report: bool = True  # draw bev.gif and report.html (seconds; campaigns may leave them to `advsim report`)
 
     def __post_init__(self) -> None:
         if self.queries < 1 and not self.replay_only:
