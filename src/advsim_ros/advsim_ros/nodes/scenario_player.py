@@ -66,6 +66,7 @@ class ScenarioPlayer(ScenarioNode):
         ):
             self.subscribe(topic, stream.add, raw=True)
         self.liveness = lockstep.StackLiveness(self)
+        self.readiness = lockstep.Readiness(self, self.latched, self.config.settle_time)
         self.queries: queue.Queue[int] = queue.Queue()
         self.subscribe(topics.PERTURBED_TRACKS, lambda tracks: self.queries.put(int(tracks.query_id)))
         self._stop = threading.Event()
@@ -90,7 +91,7 @@ class ScenarioPlayer(ScenarioNode):
             done.add(query_id)
             self.get_logger().info(f"query {query_id}: replay starts")
             try:
-                lockstep.wait_until_connected(self, self.latched, self.config.ready_timeout, self._stop)
+                self.readiness.wait(self.config.ready_timeout, self._stop)
                 stack_outputs = (
                     lockstep.stack_publishes(self, topics.DETECTIONS),
                     lockstep.stack_publishes(self, topics.PREDICTIONS),

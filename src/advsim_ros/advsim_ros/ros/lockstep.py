@@ -73,22 +73,65 @@ def stack_publishes(node: Node, topic: topics.TopicSpec) -> bool:
     return bool(stack_endpoints(node, topic.name, True))
 
 
+# Topics the player and the stack exchange: every endpoint of them must be matched before a query.
+TO_STACK = (topics.LIDAR, topics.ODOM, topics.TF, topics.CLOCK)
+FROM_STACK = (topics.PLAN,)
+
+
+def _stack_gids(node: Node) -> frozenset[bytes]:
+    endpoints = stack_endpoints(node, topics.LIDAR.name, False) + stack_endpoints(node, topics.PLAN.name, True)
+    return frozenset(bytes(info.endpoint_gid) for info in endpoints)
+
+
 def connected(node: Node, latched: Iterable[Any]) -> bool:
-    """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, latched topics matched."""
+    """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, and every
+    endpoint the player shares with them (latched topics included) is matched on the player's side."""
     stack = bool(stack_endpoints(node, topics.LIDAR.name, False)) and stack_publishes(node, topics.PLAN)
     resim = node.count_subscribers(topics.FRAME_REQUEST.name) >= 1 and node.count_publishers(topics.RENDERED.name) >= 1
-    matched = all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in latched)
+    to_stack = {topic.name for topic in TO_STACK}
+    from_stack = {topic.name for topic in FROM_STACK}
+    writers = [*latched, *(p for p in node.publishers if p.topic_name in to_stack)]
+    readers = [s for s in node.subscriptions if s.topic_name in from_stack]
+    matched = all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in writers) and all(
+        s.get_publisher_count() >= node.count_publishers(s.topic_name) for s in readers
+    )
     return stack and resim and matched
 
 
-def wait_until_connected(node: Node, latched: Iterable[Any], timeout: float, stop: threading.Event) -> bool:
-    """Wait (up to timeout) until ``connected``; the orchestrator reports a stack that never connects."""
-    publishers = list(latched)
-    deadline = time.monotonic() + timeout
-    while not connected(node, publishers):
-        if time.monotonic() >= deadline or stop.wait(POLL):
-            return False
-    return True
+class Readiness:
+    """Waits before a query until the stack and lidar_resim are connected (``connected``).
+
+    The player sees matches on its own side only; the stack's readers match the player's writers
+    when the stack's process has discovered them, a moment later, and a volatile reader that
+    matches after a message was written never gets it (its first sweep or odometry would be
+    lost). So after the stack's endpoints change (its start, a restart) the connection must hold
+    for ``settle`` seconds before the first frame is sent.
+    """
+
+    def __init__(self, node: Node, latched: Iterable[Any], settle: float) -> None:
+        self._node = node
+        self._latched = list(latched)
+        self._settle = settle
+        self._settled: frozenset[bytes] = frozenset()
+
+    def wait(self, timeout: float, stop: threading.Event) -> bool:
+        """True once connected and settled; False after ``timeout`` seconds or on stop."""
+        deadline = time.monotonic() + timeout
+        since: tuple[float, frozenset[bytes]] | None = None  # when the current set of endpoints connected
+        while True:
+            now = time.monotonic()
+            gids = _stack_gids(self._node)
+            if not connected(self._node, self._latched):
+                since = None
+            elif gids == self._settled:
+                return True
+            elif since is None or since[1] != gids:
+                since = (now, gids)
+            elif now - since[0] >= self._settle:
+                self._settled = gids
+                return True
+            if now >= deadline or stop.wait(min(POLL, self._settle / 4)):
+                return False
 
 
 class StackLiveness:
@@ -137,9 +180,10 @@ class PlayerConfig:
     ready_timeout: float = 600.0  # longest wait, per query, for the stack and lidar_resim to be connected [s]
     wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
     prefetch_frames: int = 3  # frames lidar_resim renders ahead of the one the stack is planning from
+    settle_time: float = 1.0  # how long a new connection to the stack must hold before a query starts [s]
 
     def __post_init__(self) -> None:
-        for name in ("plan_timeout", "sweep_timeout", "ready_timeout"):
+        for name in ("plan_timeout", "sweep_timeout", "ready_timeout", "settle_time"):
             if not getattr(self, name) > 0.0:
                 raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
         if self.prefetch_frames < 1:
