@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, header_msg, message, stamp_ns, time_msg
+from advsim_ros.contract import codec, names
+from advsim_ros.contract.codec import NS_PER_S, ContractError, header_msg, message, stamp_ns
 from advsim_ros.core.feasibility import PerturbedTrajectory
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray
 
@@ -102,21 +102,16 @@ class TrackRecord:
 
 
 def track_msg(record: TrackRecord) -> Any:
-    state_type = names.ACTOR_STATE
+    # A prediction carries tracks x 50 states per sweep: the classes are looked up once and the
+    # states built positionally (fields in the .msg order), which halves the cost per state.
+    types = codec.typestore().types
+    state, time = types[names.ACTOR_STATE], types[names.TIME]
+    seconds, nanoseconds = np.divmod(record.stamps_ns, NS_PER_S)
     states = [
-        message(
-            state_type,
-            stamp=time_msg(stamp),
-            x=x,
-            y=y,
-            z=z,
-            yaw=yaw,
-            velocity=velocity,
-            curvature=curvature,
-            acceleration=acceleration,
-        )
-        for stamp, (x, y, z), yaw, velocity, curvature, acceleration in zip(
-            record.stamps_ns.tolist(),
+        state(time(sec, nanosec), x, y, z, yaw, velocity, curvature, acceleration)
+        for sec, nanosec, (x, y, z), yaw, velocity, curvature, acceleration in zip(
+            seconds.tolist(),
+            nanoseconds.tolist(),
             record.xyz.tolist(),
             record.yaw.tolist(),
             record.velocity.tolist(),

@@ -131,7 +131,10 @@ class ModularStack:
             ids, classes, tracks, seen_now, now, detected[:, None, :2], detected[:, None, 2],
             np.hypot(tracks.state[:, 2], tracks.state[:, 3])[:, None], tracks.confidence,
         )  # fmt: skip
-        confirmed = np.flatnonzero(tracks.hits >= config.tracker.min_hits)
+        # Predictions are of confirmed road users, as the planner uses them; unclassified clutter (walls,
+        # poles: most tracks) is static occupancy and would only cost a message of ~15k states per sweep.
+        road_user = tracks.classes != CLASS_ORDER.index(ActorClass.OTHER)
+        confirmed = np.flatnonzero((tracks.hits >= config.tracker.min_hits) & road_user)
         prediction_output = self._objects(ids, classes, tracks, confirmed, future, xy, yaws, speeds, tracks.confidence)
         timings["total"] = time.perf_counter() - start
         return StackOutput(
