@@ -1,0 +1,72 @@
+"""The `advsim` command: one subcommand per job; each module registers its commands and calls the logic."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+
+from advsim_ros import __version__
+from advsim_ros.attack import AttackError
+from advsim_ros.cli.attack import add_attack_commands
+from advsim_ros.cli.common import CommandError
+from advsim_ros.cli.data import add_data_commands, add_label_commands, add_synth_commands
+from advsim_ros.cli.stacks import add_stack_commands
+from advsim_ros.export.command import add_export_commands
+from advsim_ros.ros.launcher import LaunchError
+from advsim_ros.viz.command import add_viz_commands
+
+__all__ = ["CommandError", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="advsim",
+        description="AdvSim for ROS 2: find safety-critical scenarios for a LiDAR-based autonomy stack.",
+    )
+    parser.add_argument("--version", action="version", version=f"advsim_ros {__version__}")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    # each area registers its commands: add_<area>_commands(subparsers)
+    add_data_commands(subparsers)
+    add_label_commands(subparsers)
+    add_synth_commands(subparsers)
+    add_attack_commands(subparsers)
+    add_stack_commands(subparsers)
+    add_viz_commands(subparsers)
+    add_export_commands(subparsers)
+    return parser
+
+
+class Terminated(Exception):  # noqa: N818 - named after the signal
+    """SIGTERM arrived: stop like Ctrl-C does, with exit code 143."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        result: int = args.run(args)
+    except (CommandError, ValueError, OSError, AttackError, LaunchError) as error:
+        print(f"advsim {args.command}: error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(
+            f"advsim {args.command}: interrupted; finished queries are kept (run the same command to resume)",
+            file=sys.stderr,
+        )
+        return 130
+    except Terminated:
+        print(
+            f"advsim {args.command}: terminated; finished queries are kept (run the same command to resume)",
+            file=sys.stderr,
+        )
+        return 143
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return result

@@ -1,0 +1,240 @@
+"""`advsim attack`, `replay` and `demo`: attacks, regression replays and the demo."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+from tqdm import tqdm
+
+from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
+from advsim_ros.attack.outputs import recorded_score
+from advsim_ros.cli.common import CommandError
+from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.io.synthetic import write_synthetic_bag
+
+
+def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    attack = subparsers.add_parser("attack", help="attack a stack on a scenario bag: search, bag out, summary, BEV")
+    attack.add_argument("bag", type=Path, help="scenario bag (rosbag2 folder), e.g. from `advsim convert`")
+    _add_stack_arguments(attack)
+    attack.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
+    attack.add_argument("--queries", type=int, default=75, help="search queries (default 75, the paper's BO budget)")
+    attack.add_argument("--actors", type=int, default=1, help="actors perturbed at once (default 1)")
+    attack.add_argument("--seed", type=int, default=0, help="seed of the search (default 0)")
+    attack.add_argument(
+        "--window-start", type=int, default=None, help="first frame of the 6 s window (default: the curated one)"
+    )
+    attack.add_argument(
+        "--reruns", type=int, default=2, help="evaluate the best query this many more times (default 2; 0: never)"
+    )
+    attack.add_argument("--rerun-top", type=int, default=1, help="re-run the N best queries (default 1)")
+    attack.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes the run)")
+    attack.set_defaults(run=_run_attack)
+
+    replay = subparsers.add_parser("replay", help="re-run a stack on a saved adversarial scenario and score it")
+    replay.add_argument("bag", type=Path, help="OUTDIR/adversarial of an attack")
+    _add_stack_arguments(replay)
+    replay.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: <bag>-replay)")
+    replay.add_argument(
+        "--check", action="store_true", help="exit 3 unless every run reproduces the recorded score (regression test)"
+    )
+    replay.add_argument("--runs", type=int, default=1, help="how many times to replay (default 1)")
+    replay.add_argument("--tolerance", type=float, default=1e-6, help="--check: allowed |L_adv difference|")
+    replay.set_defaults(run=_run_replay)
+
+    demo = subparsers.add_parser("demo", help="synthesize a street log and attack the reference stack on it")
+    demo.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    demo.add_argument("--queries", type=int, default=20, help="search queries (default 20)")
+    demo.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic log and the search")
+    demo.set_defaults(run=_run_demo)
+
+
+def _add_stack_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--stack",
+        default="reference",
+        help='"reference" (modular), "learned", or a command line that starts your stack',
+    )
+    parser.add_argument(
+        "--remap",
+        action="append",
+        default=[],
+        metavar="FROM:=TO",
+        help="topic remapping for the stack, e.g. /sensor/lidar/points:=/points_raw (repeatable)",
+    )
+    parser.add_argument("--remap-file", type=Path, default=None, help="YAML mapping of contract topic -> your topic")
+    parser.add_argument("--no-restart", action="store_true", help="do not restart the stack when it exits")
+    parser.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NODE.KEY=VALUE",
+        help="a node parameter for this run, e.g. perturber.num_candidates=20000 (repeatable; VALUE is YAML)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=120.0,
+        help="longest wait for the stack to subscribe to the LiDAR and publish plans [s] (default 120)",
+    )
+
+
+def _stack_spec(args: argparse.Namespace) -> StackSpec:
+    remappings: dict[str, str] = {}
+    if args.remap_file is not None:
+        try:
+            loaded = yaml.safe_load(args.remap_file.read_text(encoding="utf-8"))
+        except yaml.YAMLError as error:
+            raise CommandError(f"{args.remap_file}: not valid YAML ({error})") from error
+        if not isinstance(loaded, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in loaded.items()
+        ):
+            raise CommandError(f"{args.remap_file}: expected a mapping of topic names to topic names")
+        remappings.update(loaded)
+    for item in args.remap:
+        source, separator, target = item.partition(":=")
+        if not separator or not source or not target:
+            raise CommandError(f"--remap {item!r}: expected FROM:=TO")
+        remappings[source] = target
+    spec = StackSpec.parse(args.stack, remappings)
+    return dataclasses.replace(spec, restart=not args.no_restart)
+
+
+def _parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """--param NODE.KEY=VALUE items as {node: {key: value}} (dotted keys nest as in the params files)."""
+    overrides: dict[str, dict[str, Any]] = {}
+    for item in items:
+        name, separator, text = item.partition("=")
+        node, dot, key = name.partition(".")
+        if not separator or not dot or not node or not key:
+            raise CommandError(f"--param {item!r}: expected NODE.KEY=VALUE, e.g. perturber.num_candidates=20000")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as error:
+            raise CommandError(f"--param {item!r}: the value is not valid YAML ({error})") from error
+        entry = overrides.setdefault(node, {})
+        *parents, leaf = key.split(".")
+        for parent in parents:
+            entry = entry.setdefault(parent, {})
+        entry[leaf] = value
+    return overrides
+
+
+def _progress_printer(total: int) -> Any:
+    """A tqdm bar over the attack's queries, shown from the first finished query on."""
+    bars: list[Any] = []
+
+    def update(progress: dict[str, Any]) -> None:
+        if not bars:
+            bars.append(tqdm(total=total, unit="query", desc="attack", dynamic_ncols=True))
+        bar = bars[0]
+        bar.update(progress["journaled"] - bar.n)
+        best = progress["best_adversarial_loss"]
+        bar.set_postfix(best_L_adv="-" if math.isnan(best) else f"{best:.3f}", failed=progress["failed"])
+
+    def close() -> None:
+        for bar in bars:
+            bar.close()
+
+    update.close = close  # type: ignore[attr-defined]
+    return update
+
+
+def _run_attack(args: argparse.Namespace) -> int:
+    options = AttackOptions(
+        bag=args.bag,
+        out_dir=args.out,
+        stack=_stack_spec(args),
+        algorithm=args.algo,
+        queries=args.queries,
+        actors=args.actors,
+        seed=args.seed,
+        window_start_frame=args.window_start,
+        plan_timeout=args.plan_timeout,
+        connect_timeout=args.connect_timeout,
+        reruns=args.reruns,
+        rerun_top=args.rerun_top,
+        parameter_overrides=_parameter_overrides(args.param),
+    )
+    return _attack_and_report(options)
+
+
+def _attack_and_report(options: AttackOptions) -> int:
+    progress = _progress_printer(options.queries + 1 + options.reruns * options.rerun_top)
+    try:
+        result = run_attack(options, progress)
+    except AttackError as error:
+        raise CommandError(str(error)) from error
+    finally:
+        progress.close()
+    summary = result.summary
+    original, adversarial = summary["original"] or {}, summary["adversarial"] or {}
+    print(f"original    L_adv {original.get('adversarial_loss')}  collision@5s {original.get('collision_5s')}")
+    print(f"adversarial L_adv {adversarial.get('adversarial_loss')}  collision@5s {adversarial.get('collision_5s')}")
+    if summary["flaky"]:
+        print(f"flaky: queries {summary['flaky']} did not reproduce when re-run (see summary.json 'reproductions')")
+    print(f"outputs: {result.out_dir}/adversarial  {result.out_dir}/summary.json  {result.out_dir}/bev.png")
+    return 0
+
+
+def _run_replay(args: argparse.Namespace) -> int:
+    out = args.out or args.bag.with_name(f"{args.bag.name}-replay")
+    options = AttackOptions(
+        bag=args.bag,
+        out_dir=out,
+        stack=_stack_spec(args),
+        queries=0,
+        plan_timeout=args.plan_timeout,
+        connect_timeout=args.connect_timeout,
+        window_start_frame=0,
+        replay_only=True,
+        replay_runs=args.runs,
+        parameter_overrides=_parameter_overrides(args.param),
+    )
+    recorded = recorded_score(args.bag)
+    try:
+        result = run_attack(options)
+    except AttackError as error:
+        raise CommandError(str(error)) from error
+    replayed = result.summary["replay"]["adversarial_losses"]
+    expected = recorded.adversarial_loss if recorded is not None and recorded.ok else None
+    reproduced = sum(1 for value in replayed if _same(value, expected, args.tolerance))
+    print(f"recorded L_adv {expected}  replayed L_adv {', '.join(str(v) for v in replayed)}")
+    print(f"reproduced {reproduced} of {len(replayed)} runs")
+    print(f"outputs: {out}/summary.json  {out}/bev.png")
+    if args.check and reproduced < len(replayed):
+        print("advsim replay: the replayed score differs from the recorded one", file=sys.stderr)
+        return 3
+    return 0
+
+
+def _same(value: float | None, expected: float | None, tolerance: float) -> bool:
+    return value is not None and expected is not None and abs(value - expected) <= tolerance
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / f"synthetic_log_seed{args.seed}"
+    if not (bag / "metadata.yaml").exists():
+        print(f"demo: synthesizing a street log (seed {args.seed}) into {bag}")
+        write_synthetic_bag(bag, seed=args.seed)
+    options = AttackOptions(
+        bag=bag,
+        out_dir=out / "attack",
+        stack=StackSpec.reference(),
+        algorithm=args.algo,
+        queries=args.queries,
+        seed=args.seed,
+    )
+    print(f"demo: attacking the reference stack on {bag} with {args.algo}, {args.queries} queries")
+    return _attack_and_report(options)
