@@ -7,7 +7,7 @@ class CommandError(RuntimeError):
     """A command failed for a reason the user can act on; printed without a traceback."""
 
 
-def report(text: str) -> int:
+def print_result(text: str) -> int:
     """Print a command's result; exit code 0."""
     print(text)
     return 0

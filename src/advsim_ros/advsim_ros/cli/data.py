@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from advsim_ros.cli.common import report
+from advsim_ros.cli.common import print_result
 from advsim_ros.io.synthetic import write_synthetic_bag
 
 
@@ -25,7 +25,7 @@ def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     kitti.add_argument("--params", **bag_params)
     kitti.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     kitti.set_defaults(
-        run=lambda args: report(
+        run=lambda args: print_result(
             commands.convert_kitti(
                 args.root, args.seq, args.output, poses=args.poses, params=args.params, overwrite=args.overwrite
             ).describe()
@@ -45,7 +45,7 @@ def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     )
     av2.add_argument("--seed", type=int, default=0, help="seed of the simulated LiDAR's noise and ray drop")
     av2.set_defaults(
-        run=lambda args: report(
+        run=lambda args: print_result(
             commands.convert_av2(
                 args.log_dir,
                 args.output,
@@ -89,7 +89,7 @@ def _run_label(args: argparse.Namespace) -> int:
     from advsim_ros.labelling.command import label_bag
     from advsim_ros.labelling.odometry import mount_from_string
 
-    report = label_bag(
+    labelled = label_bag(
         args.bag,
         args.output,
         tracks_topic=args.tracks_topic,
@@ -98,16 +98,16 @@ def _run_label(args: argparse.Namespace) -> int:
         bag_config=load_bag_config(args.bag_params) if args.bag_params is not None else None,
         overwrite=args.overwrite,
     )
-    return report(report.describe())
+    return print_result(labelled.describe())
 
 
 def _run_curate(args: argparse.Namespace) -> int:
     from advsim_ros.io import commands
 
-    report = commands.curate_bag(
+    curated = commands.curate_bag(
         args.bag, params=args.params, bag_params=args.bag_params, output=args.output, overwrite=args.overwrite
     )
-    return report(report.as_json() if args.json else report.as_table())
+    return print_result(curated.as_json() if args.json else curated.as_table())
 
 
 def add_synth_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -135,6 +135,6 @@ def _run_synth(args: argparse.Namespace) -> int:
     path = write_synthetic_bag(
         args.output, seed=args.seed, config=config, bag_config=bag_config, overwrite=args.overwrite
     )
-    return report(
+    return print_result(
         f"wrote {path}: synthetic_{args.seed}, {config.num_frames} frames in {time.perf_counter() - started:.1f} s"
     )

@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from advsim_ros.cli.common import report
+from advsim_ros.cli.common import print_result
 
 
 def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -28,7 +28,7 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     run.add_argument("--params", type=Path, default=None, help="stack parameters (default params/stack_<stack>.yaml)")
     run.add_argument("--weights", type=Path, default=None, help="learned stack weights (default: the packaged ones)")
     run.set_defaults(
-        run=lambda args: report(
+        run=lambda args: print_result(
             json.dumps(
                 dataclasses.asdict(commands.run_on_bag(args.stack, args.bag, args.out, args.params, args.weights)),
                 indent=2,
@@ -44,7 +44,7 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     check.add_argument("--stacks", nargs="+", default=["modular", "learned"], choices=commands.STACK_NAMES)
     check.add_argument("-o", "--out", type=Path, default=None, help="write the report as JSON (and .md beside it)")
     check.set_defaults(
-        run=lambda args: report(
+        run=lambda args: print_result(
             commands.save_sanity(
                 commands.sanity(
                     None if args.no_kitti else args.kitti,
@@ -65,7 +65,7 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     train.add_argument("--params", type=Path, default=None, help="parameters (default params/stack_learned.yaml)")
     train.add_argument("--epochs", type=int, default=None, help="override training.epochs")
     train.set_defaults(
-        run=lambda args: report(
+        run=lambda args: print_result(
             json.dumps(
                 commands.train_il_command(
                     args.out,
