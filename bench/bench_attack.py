@@ -111,8 +111,8 @@ def main() -> int:
         scratch = Path(folder)
         cache = scratch / "cache"
         figures["full_cold"] = traced(bag, scratch, "cold", "reference", "bo", args.queries, cache)
-        figures["overhead"] = traced(bag, scratch, "overhead", "python -m advsim_ros.stacks.example", "random",
-                                     args.overhead_queries, cache)  # fmt: skip
+        example = f"{sys.executable} -m advsim_ros.stacks.example"
+        figures["overhead"] = traced(bag, scratch, "overhead", example, "random", args.overhead_queries, cache)
         warm, baseline = [], []
         for repeat in range(args.repeats):
             warm.append(traced(bag, scratch, f"warm{repeat}", "reference", "bo", args.queries, cache))
