@@ -17,6 +17,7 @@ from advsim_ros.ros.launcher import python_module_command
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 REPO_PARAMS = PACKAGE_ROOT.parents[2] / "params"
 STACK_TOPIC_NAMES = tuple(spec.name for spec in topics.STACK_TOPICS)
+REMAP_MODES = ("relay", "rename")
 
 
 class AttackError(RuntimeError):
@@ -40,6 +41,7 @@ class StackSpec:
     name: str  # log-file name and how the summary refers to it
     command: tuple[str, ...]  # executable and arguments (the launcher appends --ros-args ...)
     remappings: Mapping[str, str] = field(default_factory=dict)  # contract topic -> the stack's topic
+    remap_mode: str = "relay"  # "relay": stack_relay bridges the names; "rename": -r STACK:=CONTRACT to the command
     params_files: tuple[Path, ...] = ()
     restart: bool = True  # start it again when it exits during the attack
     rename_node: bool = False  # reference stacks are single nodes; users' commands keep their names
@@ -55,6 +57,18 @@ class StackSpec:
         for source, target in self.remappings.items():
             if not target.startswith("/") or " " in target:
                 raise ScenarioError(f"remapping {source}:={target}: the target must be an absolute topic name")
+        if self.remap_mode not in REMAP_MODES:
+            raise ScenarioError(f"remap mode {self.remap_mode!r}: one of {', '.join(REMAP_MODES)}")
+
+    def rename_rules(self) -> dict[str, str]:
+        """Rules for the stack's command line: its own topic names renamed to the contract's."""
+        if self.remap_mode != "rename":
+            return {}
+        return {stack: contract for contract, stack in self.remappings.items()}
+
+    def relayed(self) -> dict[str, str]:
+        """Contract topic -> the stack's name, for stack_relay and the player (relay mode)."""
+        return dict(self.remappings) if self.remap_mode == "relay" else {}
 
     @staticmethod
     def reference(params_dir: Path | None = None) -> StackSpec:

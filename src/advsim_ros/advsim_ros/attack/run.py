@@ -44,6 +44,7 @@ from advsim_ros.ros.trace import Trace
 JOURNAL_NAME = "queries.jsonl"
 CONTAINER = "graph_nodes"  # the process of the light nodes (nodes/container.py)
 RESIM = "lidar_resim"  # in a process of its own: it computes while the others wait
+RELAY = "stack_relay"  # with --remap (relay mode): the stack's own topic names bridged to the contract's
 _LIGHT_NODES = ("scenario_player", "scorer", "perturber", "search")
 _REPLAY_LIGHT_NODES = ("scenario_player", "scorer")
 
@@ -78,10 +79,17 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
                 options.algorithm: {"max_queries": options.queries},
             }
         }
+    if options.stack.relayed():  # the stack keeps its own topic names: stack_relay bridges them
+        overrides["/scenario_player"]["ros__parameters"]["stack_topics"] = _pairs(options.stack.relayed())
+        overrides[f"/{RELAY}"] = {"ros__parameters": {"relays": _pairs(options.stack.relayed())}}
     for node, values in options.parameter_overrides.items():
         entry = overrides.setdefault(f"/{node}", {"ros__parameters": {}})["ros__parameters"]
         entry.update(json.loads(json.dumps(values)))
     return overrides
+
+
+def _pairs(mapping: dict[str, str]) -> list[str]:
+    return [f"{source}:={target}" for source, target in sorted(mapping.items())]
 
 
 def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
@@ -162,6 +170,7 @@ def _run_graph(
     progress: Callable[[dict[str, Any]], None] | None,
 ) -> tuple[int, list[dict[str, Any]], dict[str, dict[str, float]]]:
     from advsim_ros.attack.follow import follow
+    from advsim_ros.ros.lockstep import StackNames
     from advsim_ros.ros.monitor import AttackMonitor  # rclpy only once the graph's environment is set
 
     run_id = secrets.randbelow(2**63 - 1) + 1
@@ -183,10 +192,19 @@ def _run_graph(
             parameters={"run_id": run_id},
         ),
     ]
+    if options.stack.relayed():
+        specs.append(
+            NodeSpec(
+                RELAY,
+                python_module_command("advsim_ros.nodes.stack_relay"),
+                params_files=(overrides_file,),
+                parameters={"run_id": run_id},
+            )
+        )
     stack = NodeSpec(
         options.stack.name,
         options.stack.command,
-        remappings=options.stack.remappings,
+        remappings=options.stack.rename_rules(),
         params_files=options.stack.params_files,
         parameters={"use_sim_time": True} if options.stack.sim_time else {},
         rename_node=options.stack.rename_node,
@@ -197,7 +215,10 @@ def _run_graph(
         graph_file = options.out_dir.resolve() / "run" / "graph.json"  # for people who want to look at the live graph
         write_text_atomically(graph_file, json.dumps({"ros_domain_id": lease.domain_id, "run_id": run_id}))
         skip = frozenset(record.query_id for record in journal.records)
-        with Launcher(env, log_dir, lease) as launcher, AttackMonitor(run_id, skip) as monitor:
+        with (
+            Launcher(env, log_dir, lease) as launcher,
+            AttackMonitor(run_id, skip, StackNames(options.stack.relayed())) as monitor,
+        ):
             launcher.start(stack)
             for spec in specs:
                 launcher.start(spec)

@@ -67,10 +67,17 @@ def _add_stack_arguments(parser: argparse.ArgumentParser) -> None:
         "--remap",
         action="append",
         default=[],
-        metavar="FROM:=TO",
-        help="topic remapping for the stack, e.g. /sensor/lidar/points:=/points_raw (repeatable)",
+        metavar="CONTRACT:=YOURS",
+        help="the topic your stack uses for a contract topic, e.g. /sensor/lidar/points:=/points_raw (repeatable)",
     )
     parser.add_argument("--remap-file", type=Path, default=None, help="YAML mapping of contract topic -> your topic")
+    parser.add_argument(
+        "--remap-mode",
+        choices=("relay", "rename"),
+        default="relay",
+        help="relay (default): the graph bridges your names, whatever starts your nodes; rename: pass "
+        "-r YOURS:=CONTRACT to your command (only when it hands --ros-args to its node)",
+    )
     parser.add_argument("--no-restart", action="store_true", help="do not restart the stack when it exits")
     parser.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
     parser.add_argument(
@@ -106,7 +113,7 @@ def _stack_spec(args: argparse.Namespace) -> StackSpec:
             raise CommandError(f"--remap {item!r}: expected FROM:=TO")
         remappings[source] = target
     spec = StackSpec.parse(args.stack, remappings)
-    return dataclasses.replace(spec, restart=not args.no_restart)
+    return dataclasses.replace(spec, restart=not args.no_restart, remap_mode=args.remap_mode)
 
 
 def _parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:

@@ -48,18 +48,10 @@ SCORE = TopicSpec("/advsim/score", names.QUERY_SCORE, qos.HISTORY)
 SEARCH_STATUS = TopicSpec("/advsim/search_status", names.SEARCH_STATUS, qos.LATCHED)
 
 # The stack's side of the contract: what `--remap` may name.
-STACK_TOPICS: tuple[TopicSpec, ...] = (
-    LIDAR,
-    ODOM,
-    TF,
-    TF_STATIC,
-    CLOCK,
-    MAP,
-    SCENARIO_INFO,
-    PLAN,
-    DETECTIONS,
-    PREDICTIONS,
-)
+# What the stack under test reads (published by the graph) and what it answers (read by the graph)
+STACK_INPUTS: tuple[TopicSpec, ...] = (LIDAR, ODOM, TF, TF_STATIC, CLOCK, MAP, SCENARIO_INFO)
+STACK_OUTPUTS: tuple[TopicSpec, ...] = (PLAN, DETECTIONS, PREDICTIONS)
+STACK_TOPICS: tuple[TopicSpec, ...] = (*STACK_INPUTS, *STACK_OUTPUTS)
 ALL_TOPICS: tuple[TopicSpec, ...] = (
     *STACK_TOPICS,
     DRIVABLE,
@@ -73,3 +65,11 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     SCORE,
     SEARCH_STATUS,
 )
+
+
+def stack_topic(name: str) -> TopicSpec:
+    """The contract topic (of those the stack shares with the graph) of that default name."""
+    for spec in STACK_TOPICS:
+        if spec.name == name:
+            return spec
+    raise KeyError(name)

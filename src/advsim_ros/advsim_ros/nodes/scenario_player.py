@@ -65,8 +65,10 @@ class ScenarioPlayer(ScenarioNode):
             (topics.RENDERED, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS), arrivals, strict=True
         ):
             self.subscribe(topic, stream.add, raw=True)
-        self.liveness = lockstep.StackLiveness(self)
-        self.readiness = lockstep.Readiness(self, self.latched, self.config.settle_time)
+        names = lockstep.StackNames.from_pairs(self.config.stack_topics)
+        self.stack_names = names
+        self.liveness = lockstep.StackLiveness(self, names)
+        self.readiness = lockstep.Readiness(self, self.latched, self.config.settle_time, names)
         self.queries: queue.Queue[int] = queue.Queue()
         self.subscribe(topics.PERTURBED_TRACKS, lambda tracks: self.queries.put(int(tracks.query_id)))
         self._stop = threading.Event()
@@ -93,8 +95,8 @@ class ScenarioPlayer(ScenarioNode):
             try:
                 self.readiness.wait(self.config.ready_timeout, self._stop)
                 stack_outputs = (
-                    lockstep.stack_publishes(self, topics.DETECTIONS),
-                    lockstep.stack_publishes(self, topics.PREDICTIONS),
+                    lockstep.stack_publishes(self, topics.DETECTIONS, self.stack_names),
+                    lockstep.stack_publishes(self, topics.PREDICTIONS, self.stack_names),
                 )
                 lockstep.replay_query(
                     query_id, self.history, self.clock, self.config, self.outputs, self.inputs, self.liveness,

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from rclpy.node import Node
@@ -30,7 +30,9 @@ from advsim_ros.core.types import FloatArray, ScenarioError
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
 # Nodes of the attack graph itself; every other node on the domain belongs to the stack.
-GRAPH_NODE_NAMES = frozenset({"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor"})
+GRAPH_NODE_NAMES = frozenset(
+    {"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor", "stack_relay"}
+)
 
 
 class StampedArrivals:
@@ -63,14 +65,39 @@ class StampedArrivals:
             return self._messages.pop(stamp_ns)
 
 
+@dataclass(frozen=True)
+class StackNames:
+    """The names under which the stack's own endpoints of the contract topics are found.
+
+    The contract's names, unless the stack keeps names of its own and stack_relay bridges them
+    (``advsim attack --remap CONTRACT:=STACK``): then the stack is looked for under its names.
+    """
+
+    renamed: Mapping[str, str] = field(default_factory=dict)  # contract topic -> the stack's topic
+
+    @staticmethod
+    def from_pairs(pairs: Iterable[str]) -> StackNames:
+        """From "CONTRACT:=STACK" strings (the player's stack_topics parameter)."""
+        renamed = {}
+        for pair in pairs:
+            contract, separator, stack = pair.partition(":=")
+            if not separator or not contract or not stack:
+                raise ScenarioError(f"/scenario_player stack_topics: expected CONTRACT:=STACK, got {pair!r}")
+            renamed[contract] = stack
+        return StackNames(renamed)
+
+    def __call__(self, topic: topics.TopicSpec) -> str:
+        return self.renamed.get(topic.name, topic.name)
+
+
 def stack_endpoints(node: Node, topic: str, publishers: bool) -> list[Any]:
     """Endpoints of the stack (every node not of the attack graph) on a topic."""
     infos = node.get_publishers_info_by_topic(topic) if publishers else node.get_subscriptions_info_by_topic(topic)
     return [info for info in infos if info.node_name not in GRAPH_NODE_NAMES]
 
 
-def stack_publishes(node: Node, topic: topics.TopicSpec) -> bool:
-    return bool(stack_endpoints(node, topic.name, True))
+def stack_publishes(node: Node, topic: topics.TopicSpec, names: StackNames) -> bool:
+    return bool(stack_endpoints(node, names(topic), True))
 
 
 # Topics the player and the stack exchange: every endpoint of them must be matched before a query.
@@ -78,15 +105,15 @@ TO_STACK = (topics.LIDAR, topics.ODOM, topics.TF, topics.CLOCK)
 FROM_STACK = (topics.PLAN,)
 
 
-def _stack_gids(node: Node) -> frozenset[bytes]:
-    endpoints = stack_endpoints(node, topics.LIDAR.name, False) + stack_endpoints(node, topics.PLAN.name, True)
+def _stack_gids(node: Node, names: StackNames) -> frozenset[bytes]:
+    endpoints = stack_endpoints(node, names(topics.LIDAR), False) + stack_endpoints(node, names(topics.PLAN), True)
     return frozenset(bytes(info.endpoint_gid) for info in endpoints)
 
 
-def connected(node: Node, latched: Iterable[Any]) -> bool:
+def connected(node: Node, latched: Iterable[Any], names: StackNames) -> bool:
     """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, and every
     endpoint the player shares with them (latched topics included) is matched on the player's side."""
-    stack = bool(stack_endpoints(node, topics.LIDAR.name, False)) and stack_publishes(node, topics.PLAN)
+    stack = bool(stack_endpoints(node, names(topics.LIDAR), False)) and stack_publishes(node, topics.PLAN, names)
     resim = node.count_subscribers(topics.FRAME_REQUEST.name) >= 1 and node.count_publishers(topics.RENDERED.name) >= 1
     to_stack = {topic.name for topic in TO_STACK}
     from_stack = {topic.name for topic in FROM_STACK}
@@ -108,10 +135,11 @@ class Readiness:
     for ``settle`` seconds before the first frame is sent.
     """
 
-    def __init__(self, node: Node, latched: Iterable[Any], settle: float) -> None:
+    def __init__(self, node: Node, latched: Iterable[Any], settle: float, names: StackNames) -> None:
         self._node = node
         self._latched = list(latched)
         self._settle = settle
+        self._names = names
         self._settled: frozenset[bytes] = frozenset()
 
     def wait(self, timeout: float, stop: threading.Event) -> bool:
@@ -120,8 +148,8 @@ class Readiness:
         since: tuple[float, frozenset[bytes]] | None = None  # when the current set of endpoints connected
         while True:
             now = time.monotonic()
-            gids = _stack_gids(self._node)
-            if not connected(self._node, self._latched):
+            gids = _stack_gids(self._node, self._names)
+            if not connected(self._node, self._latched, self._names):
                 since = None
             elif gids == self._settled:
                 return True
@@ -142,13 +170,15 @@ class StackLiveness:
     counts (an old one expiring does not), and is remembered for the rest of the query.
     """
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, names: StackNames) -> None:
         self._node = node
+        self._names = names
         self._at_start: frozenset[bytes] = frozenset()
         self.lost = False
 
     def _publishers(self) -> frozenset[bytes]:
-        return frozenset(bytes(info.endpoint_gid) for info in stack_endpoints(self._node, topics.PLAN.name, True))
+        endpoints = stack_endpoints(self._node, self._names(topics.PLAN), True)
+        return frozenset(bytes(info.endpoint_gid) for info in endpoints)
 
     def begin(self) -> None:
         self._at_start = self._publishers()
@@ -181,6 +211,7 @@ class PlayerConfig:
     wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
     prefetch_frames: int = 3  # frames lidar_resim renders ahead of the one the stack is planning from
     settle_time: float = 1.0  # how long a new connection to the stack must hold before a query starts [s]
+    stack_topics: tuple[str, ...] = ()  # CONTRACT:=STACK: topics the stack keeps its own names for (stack_relay)
 
     def __post_init__(self) -> None:
         for name in ("plan_timeout", "sweep_timeout", "ready_timeout", "settle_time"):
@@ -188,6 +219,7 @@ class PlayerConfig:
                 raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
         if self.prefetch_frames < 1:
             raise ScenarioError(f"/scenario_player prefetch_frames: must be >= 1, got {self.prefetch_frames}")
+        StackNames.from_pairs(self.stack_topics)  # refused here, with the pair named, when malformed
 
 
 @dataclass

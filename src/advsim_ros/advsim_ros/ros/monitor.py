@@ -35,7 +35,7 @@ from advsim_ros.contract.protocol import (
 from advsim_ros.contract.tracks import track_array_from_msg, track_array_msg
 from advsim_ros.core.types import ActorTrack, Perturbation
 from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode
-from advsim_ros.ros.lockstep import GRAPH_NODE_NAMES, stack_endpoints
+from advsim_ros.ros.lockstep import GRAPH_NODE_NAMES, StackNames, stack_endpoints
 
 MONITOR_NODE = "advsim_monitor"
 
@@ -77,8 +77,9 @@ class Progress:
 
 
 class AttackMonitor:
-    def __init__(self, run_id: int, skip: frozenset[int] = frozenset()) -> None:
+    def __init__(self, run_id: int, skip: frozenset[int] = frozenset(), names: StackNames | None = None) -> None:
         self.run_id = run_id
+        self.stack_names = names or StackNames()
         self.skip = skip  # queries already journaled (a resumed attack): never handed out again
         self.selection: SelectionRecord | None = None
         self.progress = Progress()
@@ -175,15 +176,16 @@ class AttackMonitor:
     def stack_connection(self) -> tuple[bool, str]:
         """Whether the stack listens to the LiDAR and publishes plans; if not, what it does instead."""
         node = self.node
-        lidar = bool(stack_endpoints(node, topics.LIDAR.name, False))
-        plans = bool(stack_endpoints(node, topics.PLAN.name, True))
+        lidar_topic, plan_topic = self.stack_names(topics.LIDAR), self.stack_names(topics.PLAN)
+        lidar = bool(stack_endpoints(node, lidar_topic, False))
+        plans = bool(stack_endpoints(node, plan_topic, True))
         if lidar and plans:
             return True, ""
         missing = []
         if not lidar:
-            missing.append(f"no subscription to the LiDAR topic {topics.LIDAR.name}")
+            missing.append(f"no subscription to the LiDAR topic {lidar_topic}")
         if not plans:
-            missing.append(f"no publisher of the plan topic {topics.PLAN.name}")
+            missing.append(f"no publisher of the plan topic {plan_topic}")
         used = []
         for name, namespace in node.get_node_names_and_namespaces():
             if name in GRAPH_NODE_NAMES:

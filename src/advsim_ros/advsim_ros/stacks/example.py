@@ -26,15 +26,21 @@ from advsim_ros.contract.pointcloud import cloud_to_points
 
 
 class ExampleStack(Node):
-    def __init__(self, name: str = "example_stack") -> None:
+    def __init__(
+        self,
+        name: str = "example_stack",
+        lidar_topic: str = "/sensor/lidar/points",
+        odometry_topic: str = "/ego/odom",
+        plan_topic: str = "/planning/trajectory",
+    ) -> None:
         super().__init__(name)
         self.sweeps = 0
         # sweeps and odometry come on different topics, in either order: pair them by stamp
         self.odometry: dict[int, Odometry] = {}
         self.pending: dict[int, PointCloud2] = {}
-        self.plan_publisher = self.create_publisher(PathMsg, "/planning/trajectory", 10)
-        self.create_subscription(Odometry, "/ego/odom", self.on_odometry, 10)
-        self.create_subscription(PointCloud2, "/sensor/lidar/points", self.on_sweep, qos_profile_sensor_data)
+        self.plan_publisher = self.create_publisher(PathMsg, plan_topic, 10)
+        self.create_subscription(Odometry, odometry_topic, self.on_odometry, 10)
+        self.create_subscription(PointCloud2, lidar_topic, self.on_sweep, qos_profile_sensor_data)
 
     def on_odometry(self, message: Odometry) -> None:
         stamp = _stamp_ns(message.header)

@@ -1,0 +1,66 @@
+"""A stack with topic names of its own is attacked without touching its code (`--remap CONTRACT:=YOURS`).
+
+The test stack (processes/own_names_stack.py) reads /points_raw and /localization/odom and answers
+on /my_planner/path. Started through a script that passes no arguments on, only the relay can
+connect it; started directly, a rename rule can. Both ways it must see exactly what the contract's
+topics carry, so both attacks give the same scores query for query.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+PROCESSES = Path(__file__).resolve().parent / "processes"
+REMAPS = (
+    "--remap", "/sensor/lidar/points:=/points_raw",
+    "--remap", "/ego/odom:=/localization/odom",
+    "--remap", "/planning/trajectory:=/my_planner/path",
+)  # fmt: skip
+
+
+def _attack(bag: Path, out: Path, stack: str, *extra: str) -> dict[str, Any]:
+    command = [
+        sys.executable, "-m", "advsim_ros.cli", "attack", str(bag), "--stack", stack, "--algo", "random",
+        "--queries", "2", "--reruns", "0", "--param", "perturber.num_candidates=20000", "--connect-timeout", "120",
+        "-o", str(out), *REMAPS, *extra,
+    ]  # fmt: skip
+    environment = {**os.environ, "PYTHON": sys.executable}
+    result = subprocess.run(command, capture_output=True, text=True, timeout=900, check=False, env=environment)
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary: dict[str, Any] = json.loads((out / "summary.json").read_text())
+    return summary
+
+
+def _scores(summary: dict[str, Any]) -> list[tuple[int, str, float, str]]:
+    return [
+        (q["query_id"], q["score"]["status"], q["score"]["adversarial_loss"], q["score"]["input_digest"])
+        for q in summary["queries"]
+    ]
+
+
+@pytest.mark.slow
+def test_a_stack_with_its_own_topic_names_is_connected_by_the_relay_or_by_renaming_and_sees_the_same(
+    synthetic_bag: Path, tmp_path: Path
+) -> None:
+    relayed = _attack(synthetic_bag, tmp_path / "relay", f"bash {PROCESSES / 'run_own_names_stack.sh'}")
+    assert {q["score"]["status"] for q in relayed["queries"]} == {"ok"}
+    assert {q["score"]["plans_received"] for q in relayed["queries"]} == {10}  # every frame answered
+    logs = tmp_path / "relay" / "run" / "logs"
+    assert "relaying /sensor/lidar/points -> /points_raw" in (logs / "stack_relay.log").read_text()
+
+    renamed = _attack(
+        synthetic_bag,
+        tmp_path / "rename",
+        f"{sys.executable} {PROCESSES / 'own_names_stack.py'}",
+        "--remap-mode",
+        "rename",
+    )
+    assert not (tmp_path / "rename" / "run" / "logs" / "stack_relay.log").exists()
+    assert _scores(renamed) == _scores(relayed)
