@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -64,3 +65,32 @@ def test_a_stack_with_its_own_topic_names_is_connected_by_the_relay_or_by_renami
     )
     assert not (tmp_path / "rename" / "run" / "logs" / "stack_relay.log").exists()
     assert _scores(renamed) == _scores(relayed)
+
+
+@pytest.mark.slow
+def test_advsim_doctor_says_what_the_stack_uses_and_the_remaps_that_connect_it(
+    synthetic_bag: Path, tmp_path: Path
+) -> None:
+    stack = f"bash {PROCESSES / 'run_own_names_stack.sh'}"
+    environment = {**os.environ, "PYTHON": sys.executable}
+
+    def doctor(out: str, *extra: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "advsim_ros.cli", "doctor", str(synthetic_bag), "--stack", stack,
+                   "-o", str(tmp_path / out), *extra]  # fmt: skip
+        return subprocess.run(command, capture_output=True, text=True, timeout=600, check=False, env=environment)
+
+    unconnected = doctor("plain", "--connect-timeout", "20")
+    assert unconnected.returncode == 1, unconnected.stderr
+    table = unconnected.stdout
+    assert re.search(r"^/sensor/lidar/points\s+in\s+/sensor/lidar/points\s+-\s+-\s+MISSING$", table, re.MULTILINE)
+    assert "stack node /own_names_stack: subscribes ['/localization/odom', '/points_raw']" in table
+    for remap in REMAPS[1::2]:
+        assert f"--remap {remap}" in table  # every remap it needs, and only from its own topics
+    assert "verdict: NOT ready" in table
+
+    connected = doctor("remapped", *REMAPS)
+    assert connected.returncode == 0, connected.stdout + connected.stderr
+    assert re.search(r"^/planning/trajectory\s+out\s+/my_planner/path\s+nav_msgs/msg/Path\s+reliable, volatile\s+ok$",
+                     connected.stdout, re.MULTILINE)  # fmt: skip
+    assert "plans: 10 of 10 sweeps answered" in connected.stdout
+    assert "Found remap rule" not in connected.stderr  # the advsim command line is not rcl's

@@ -8,6 +8,7 @@ stack does instead, read from the ROS graph), or when nothing progresses for too
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -15,11 +16,13 @@ from typing import Any
 
 from advsim_ros.attack.checks import Preflight
 from advsim_ros.attack.options import AttackError, AttackOptions
+from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.journal import Journal
 from advsim_ros.ros.launcher import Launcher, NodeSpec
 from advsim_ros.ros.monitor import AttackMonitor
 
 _POLL = 0.1  # [s]
+STACK_GRAPH_FILE = "stack_graph.json"  # in OUTDIR/run: the stack's nodes, topics, types and QoS
 
 
 def _log_tail(path: Path, lines: int = 30) -> str:
@@ -53,7 +56,7 @@ def follow(
     crashes: list[dict[str, Any]] = []
     graph_names = {spec.name for spec in graph}
     replay_next = len(journal.records) if options.replay_only else -1
-    connected_once = False
+    connected_once = graph_written = False
     started = last_change = time.monotonic()
     world_frame = checked.bag_config.world_frame
     if options.replay_only and replay_next < options.replay_runs:
@@ -92,9 +95,12 @@ def follow(
         if monitor.search_finished and not options.replay_only and monitor.idle():
             break
         now = time.monotonic()
+        if connected_once and not graph_written:  # node names come after the endpoints: wait for them
+            graph_written = _write_stack_graph(options, monitor, final=False)
         if not connected_once:
             connected_once, missing = monitor.stack_connection()
             if not connected_once and now - started > options.connect_timeout:
+                _write_stack_graph(options, monitor, final=True)
                 raise AttackError(
                     f"the stack did not connect within {options.connect_timeout:.0f} s: {missing}; "
                     f"stack log: {launcher.log_path(stack.name)}"
@@ -104,5 +110,15 @@ def follow(
             raise AttackError(
                 f"no query finished for {limit:.0f} s ({len(journal)} journaled); logs in {launcher.log_dir}"
             )
+    if not graph_written:
+        _write_stack_graph(options, monitor, final=True)
     journal.mark_finished()
     return crashes
+
+
+def _write_stack_graph(options: AttackOptions, monitor: AttackMonitor, final: bool) -> bool:
+    """OUTDIR/run/stack_graph.json: what the stack is on the graph (people, `advsim doctor`); True once written."""
+    graph = monitor.stack_graph()
+    if graph or final:
+        write_text_atomically(options.out_dir.resolve() / "run" / STACK_GRAPH_FILE, json.dumps(graph, indent=1))
+    return bool(graph) or final

@@ -12,6 +12,7 @@ from advsim_ros.attack import AttackError
 from advsim_ros.cli.attack import add_attack_commands
 from advsim_ros.cli.common import CommandError
 from advsim_ros.cli.data import add_data_commands, add_label_commands, add_synth_commands
+from advsim_ros.cli.doctor import add_doctor_commands
 from advsim_ros.cli.stacks import add_stack_commands
 from advsim_ros.export.command import add_export_commands
 from advsim_ros.ros.launcher import LaunchError
@@ -32,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_label_commands(subparsers)
     add_synth_commands(subparsers)
     add_attack_commands(subparsers)
+    add_doctor_commands(subparsers)
     add_stack_commands(subparsers)
     add_viz_commands(subparsers)
     add_export_commands(subparsers)

@@ -23,7 +23,7 @@ from advsim_ros.io.synthetic import write_synthetic_bag
 def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     attack = subparsers.add_parser("attack", help="attack a stack on a scenario bag: search, bag out, summary, BEV")
     attack.add_argument("bag", type=Path, help="scenario bag (rosbag2 folder), e.g. from `advsim convert`")
-    _add_stack_arguments(attack)
+    add_stack_arguments(attack)
     attack.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
     attack.add_argument("--queries", type=int, default=75, help="search queries (default 75, the paper's BO budget)")
     attack.add_argument("--actors", type=int, default=1, help="actors perturbed at once (default 1)")
@@ -40,7 +40,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
 
     replay = subparsers.add_parser("replay", help="re-run a stack on a saved adversarial scenario and score it")
     replay.add_argument("bag", type=Path, help="OUTDIR/adversarial of an attack")
-    _add_stack_arguments(replay)
+    add_stack_arguments(replay)
     replay.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: <bag>-replay)")
     replay.add_argument(
         "--check", action="store_true", help="exit 3 unless every run reproduces the recorded score (regression test)"
@@ -57,7 +57,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     demo.set_defaults(run=_run_demo)
 
 
-def _add_stack_arguments(parser: argparse.ArgumentParser) -> None:
+def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--stack",
         default="reference",
@@ -95,7 +95,7 @@ def _add_stack_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _stack_spec(args: argparse.Namespace) -> StackSpec:
+def stack_spec(args: argparse.Namespace) -> StackSpec:
     remappings: dict[str, str] = {}
     if args.remap_file is not None:
         try:
@@ -116,7 +116,7 @@ def _stack_spec(args: argparse.Namespace) -> StackSpec:
     return dataclasses.replace(spec, restart=not args.no_restart, remap_mode=args.remap_mode)
 
 
-def _parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
+def parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
     """--param NODE.KEY=VALUE items as {node: {key: value}} (dotted keys nest as in the params files)."""
     overrides: dict[str, dict[str, Any]] = {}
     for item in items:
@@ -160,7 +160,7 @@ def _run_attack(args: argparse.Namespace) -> int:
     options = AttackOptions(
         bag=args.bag,
         out_dir=args.out,
-        stack=_stack_spec(args),
+        stack=stack_spec(args),
         algorithm=args.algo,
         queries=args.queries,
         actors=args.actors,
@@ -170,7 +170,7 @@ def _run_attack(args: argparse.Namespace) -> int:
         connect_timeout=args.connect_timeout,
         reruns=args.reruns,
         rerun_top=args.rerun_top,
-        parameter_overrides=_parameter_overrides(args.param),
+        parameter_overrides=parameter_overrides(args.param),
     )
     return _attack_and_report(options)
 
@@ -198,14 +198,14 @@ def _run_replay(args: argparse.Namespace) -> int:
     options = AttackOptions(
         bag=args.bag,
         out_dir=out,
-        stack=_stack_spec(args),
+        stack=stack_spec(args),
         queries=0,
         plan_timeout=args.plan_timeout,
         connect_timeout=args.connect_timeout,
         window_start_frame=0,
         replay_only=True,
         replay_runs=args.runs,
-        parameter_overrides=_parameter_overrides(args.param),
+        parameter_overrides=parameter_overrides(args.param),
     )
     recorded = recorded_score(args.bag)
     try:

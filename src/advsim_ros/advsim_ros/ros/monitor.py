@@ -35,7 +35,8 @@ from advsim_ros.contract.protocol import (
 from advsim_ros.contract.tracks import track_array_from_msg, track_array_msg
 from advsim_ros.core.types import ActorTrack, Perturbation
 from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode
-from advsim_ros.ros.lockstep import GRAPH_NODE_NAMES, StackNames, stack_endpoints
+from advsim_ros.ros.introspect import describe, stack_graph
+from advsim_ros.ros.lockstep import StackNames, stack_endpoints
 
 MONITOR_NODE = "advsim_monitor"
 
@@ -87,7 +88,8 @@ class AttackMonitor:
         self._pending: dict[int, _Pending] = {}
 
     def __enter__(self) -> AttackMonitor:
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # SIGINT/SIGTERM stay the orchestrator's
+        # SIGINT/SIGTERM stay the orchestrator's; args=[]: the advsim command line (--remap A:=B) is not for rcl
+        rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
         self.node = GraphNode(MONITOR_NODE, [Parameter(RUN_ID_PARAMETER, value=self.run_id)])
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
@@ -186,15 +188,9 @@ class AttackMonitor:
             missing.append(f"no subscription to the LiDAR topic {lidar_topic}")
         if not plans:
             missing.append(f"no publisher of the plan topic {plan_topic}")
-        used = []
-        for name, namespace in node.get_node_names_and_namespaces():
-            if name in GRAPH_NODE_NAMES:
-                continue
-            subscribed = sorted(t for t, _ in node.get_subscriber_names_and_types_by_node(name, namespace))
-            published = sorted(t for t, _ in node.get_publisher_names_and_types_by_node(name, namespace))
-            used.append(
-                f"node {namespace.rstrip('/')}/{name} subscribes {subscribed or 'nothing'}, "
-                f"publishes {published or 'nothing'}"
-            )
-        seen = "; ".join(used) if used else "no node of the stack is on the ROS graph"
+        seen = describe(stack_graph(node))
         return False, f"{' and '.join(missing)} ({seen})"
+
+    def stack_graph(self) -> list[dict[str, Any]]:
+        """The stack's nodes with their topics, types and QoS (ros.introspect)."""
+        return stack_graph(self.node)
