@@ -1,0 +1,105 @@
+"""One row per attack of a campaign (results.csv), built from the attack's summary.json.
+
+The row names the attack (scenario, window, stack, algorithm, budget, actors, objective, seed),
+gives the original scenario's and the adversarial scenario's metrics side by side, and what the
+attack cost. ``transfer`` rows say how a found scenario fared when replayed on another stack.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+# the metrics of one scored query that the report tabulates (advsim_msgs/QueryScore field names)
+METRICS = (
+    "adversarial_loss",
+    "collision_3s",
+    "collision_5s",
+    "l2_human_3s",
+    "l2_human_5s",
+    "lateral_acceleration",
+    "jerk",
+    "detection_ap",
+    "prediction_l2_3s",
+    "prediction_l2_5s",
+)
+IDENTITY = ("attack", "scenario", "window_start", "stack", "algorithm", "budget", "actors", "objective", "seed")
+COLUMNS = (
+    *IDENTITY,
+    "status",  # ok | failed (the attack could not run to its end: see error)
+    *(f"original_{name}" for name in METRICS),
+    *(f"adversarial_{name}" for name in METRICS),
+    "queries",  # scored queries (original and re-runs included)
+    "failed_queries",
+    "flaky",  # the best query did not reproduce when re-run
+    "wall_s",
+    "cpu_s",
+    "peak_rss_mb",
+    "bag",
+    "out_dir",  # relative to the campaign folder
+    "error",
+)
+TRANSFER_COLUMNS = ("attack", "source_stack", "target_stack", "collision_5s", "adversarial_loss", "status", "out_dir")
+
+
+def _metric(score: Mapping[str, Any] | None, name: str) -> float:
+    if not score:
+        return math.nan
+    value = score.get(name)
+    return math.nan if value is None else float(value)
+
+
+def attack_row(
+    identity: Mapping[str, Any], summary: Mapping[str, Any], cost: Mapping[str, float], out_dir: str
+) -> dict[str, Any]:
+    """The results row of a finished attack from its summary.json and what running it cost."""
+    row: dict[str, Any] = {key: identity[key] for key in IDENTITY}
+    row["status"] = "ok" if summary.get("adversarial") else "failed"
+    for prefix, score in (("original", summary.get("original")), ("adversarial", summary.get("adversarial"))):
+        for name in METRICS:
+            row[f"{prefix}_{name}"] = _metric(score, name)
+    row["queries"] = len(summary.get("queries", ()))
+    row["failed_queries"] = int(summary.get("failed_queries", 0))
+    row["flaky"] = bool(summary.get("flaky"))
+    row["wall_s"] = float(cost.get("wall_s", math.nan))
+    row["cpu_s"] = float(cost.get("cpu_s", math.nan))
+    row["peak_rss_mb"] = float(cost.get("peak_rss_mb", math.nan))
+    row["bag"] = str(identity["bag"])
+    row["out_dir"] = out_dir
+    row["error"] = "" if row["status"] == "ok" else "no adversarial scenario was scored"
+    return row
+
+
+def failed_row(identity: Mapping[str, Any], error: str, out_dir: str) -> dict[str, Any]:
+    """The row of an attack that could not run to its end (its metrics NaN, the error one line)."""
+    row: dict[str, Any] = {key: identity[key] for key in IDENTITY}
+    row.update({f"{p}_{name}": math.nan for p in ("original", "adversarial") for name in METRICS})
+    row.update(status="failed", queries=0, failed_queries=0, flaky=False, wall_s=math.nan, cpu_s=math.nan)
+    row.update(peak_rss_mb=math.nan, bag=str(identity["bag"]), out_dir=out_dir, error=error.splitlines()[0][:300])
+    return row
+
+
+def best_curve(summary: Mapping[str, Any]) -> list[float]:
+    """Best L_adv found after each searched query (the original and re-runs left out)."""
+    best, curve = -math.inf, []
+    for query in summary.get("queries", ()):
+        if query.get("algorithm") in ("original", "rerun"):
+            continue
+        value = query.get("score", {}).get("adversarial_loss")
+        if value is not None and math.isfinite(value):
+            best = max(best, float(value))
+        curve.append(best if math.isfinite(best) else math.nan)
+    return curve
+
+
+def to_csv(rows: Iterable[Mapping[str, Any]], columns: Sequence[str]) -> str:
+    """CSV text with a header; NaN as an empty cell."""
+    stream = io.StringIO()
+    writer = csv.DictWriter(stream, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
+    return stream.getvalue()
