@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from advsim_ros import __version__
 from advsim_ros.attack import AttackError
 from advsim_ros.cli.attack import add_attack_commands
+from advsim_ros.cli.campaign import add_campaign_commands
 from advsim_ros.cli.common import CommandError
 from advsim_ros.cli.data import add_data_commands, add_label_commands, add_synth_commands
 from advsim_ros.cli.doctor import add_doctor_commands
@@ -33,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_label_commands(subparsers)
     add_synth_commands(subparsers)
     add_attack_commands(subparsers)
+    add_campaign_commands(subparsers)
     add_doctor_commands(subparsers)
     add_stack_commands(subparsers)
     add_viz_commands(subparsers)

@@ -104,7 +104,7 @@ def reserve_domain_id() -> Iterator[DomainLease]:
     raise LaunchError(f"no free ROS_DOMAIN_ID in {_DOMAIN_IDS.start}..{_DOMAIN_IDS.stop - 1}")
 
 
-def _die_with_parent(argv: list[str]) -> list[str]:
+def die_with_parent(argv: list[str]) -> list[str]:
     """argv run through util-linux's setpriv so that the process gets SIGKILL when the orchestrator dies.
 
     (prctl(PR_SET_PDEATHSIG) survives the exec; setpriv sets it without a Python pre-exec hook,
@@ -175,7 +175,7 @@ class Launcher:
         log_file = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
         try:
             process = subprocess.Popen(
-                _die_with_parent(spec.argv()),
+                die_with_parent(spec.argv()),
                 env=self._env,
                 stdin=subprocess.DEVNULL,
                 stdout=log_file,

@@ -1,0 +1,388 @@
+"""The campaign YAML: what to attack, with what, how often; checked whole before anything starts.
+
+    scenarios:                      # each entry: bag | bags | synthetic, and which windows
+      - bag: logs/kitti_0000        # a scenario bag (paths are relative to this file)
+        windows: {curated: 3}       # the 3 curated windows of highest SDV collision rate (default 1)
+      - bags: logs/                 # every scenario bag in a folder
+        windows: all                # every candidate window (params/curation.yaml step)
+      - synthetic: {seeds: [0, 1]}  # synthetic street logs, written into OUTDIR/logs
+        windows: {starts: [0]}      # explicit first frames
+    stacks: [reference, learned, {name: mine, command: "my_stack --fast", remap: {/plan: /my/plan}}]
+    algorithms: {bo: 75, ga: 500}   # algorithm: query budget
+    actors: [1]                     # actors perturbed at once (Table 4: [1, 2, 3, 4, 5])
+    objectives: [M5]                # M0..M5, closest_distance, max_margin (Table 6)
+    seeds: [0]
+    reruns: 1                       # re-evaluations of each attack's best query (reproducibility)
+    transfer: true                  # replay every found failure on every other stack (Table 3)
+    failure: {collision: true, adversarial_loss_above: null}   # what the regression suite takes
+    parameters: {perturber: {num_candidates: 2000}}            # node parameters for every attack
+
+Every combination of scenario window, stack, algorithm, actors, objective and seed is one
+attack; a problem is reported as one line naming the key (CampaignError).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from advsim_ros.attack.options import AttackOptions, StackSpec, default_params_dir
+from advsim_ros.core.curation import CurationConfig, curate_windows, load_curation_config
+from advsim_ros.core.episode import WindowConfig
+from advsim_ros.core.objective import PRESET_NAMES
+from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.core.types import ScenarioError
+
+TOP_KEYS = (
+    "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "reruns", "transfer", "failure",
+    "parameters", "plan_timeout",
+)  # fmt: skip
+SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows")
+STACK_KEYS = ("name", "command", "remap", "remap_mode", "params")
+FAILURE_KEYS = ("collision", "adversarial_loss_above")
+SYNTHETIC_KEYS = ("seeds", "seed_range")
+
+
+class CampaignError(ScenarioError):
+    """A campaign configuration that cannot run; the message names the key and the problem."""
+
+
+@dataclass(frozen=True)
+class ScenarioSource:
+    """One scenario log of the campaign and the windows to attack in it."""
+
+    name: str  # unique within the campaign: the bag folder's name (or synthetic_seedN)
+    bag: Path
+    windows: Any  # "curated" | "all" | {"curated": k} | {"starts": [...]}
+    synthetic_seed: int | None = None  # written into OUTDIR/logs before the attacks when not None
+
+
+@dataclass(frozen=True)
+class FailureRule:
+    """Which adversarial scenarios count as failures (and go into the regression suite)."""
+
+    collision: bool = True  # a collision up to 5 s
+    adversarial_loss_above: float | None = None  # or L_adv above this value
+
+    def failed(self, score: Mapping[str, Any] | None) -> bool:
+        if not score:
+            return False
+        if self.collision and (score.get("collision_5s") or 0.0) > 0.5:
+            return True
+        loss = score.get("adversarial_loss")
+        return self.adversarial_loss_above is not None and loss is not None and loss > self.adversarial_loss_above
+
+
+@dataclass(frozen=True)
+class AttackPlan:
+    """One attack of the campaign: everything needed to run it in another process (JSON)."""
+
+    key: str  # unique, also the attack's folder name under OUTDIR/attacks
+    scenario: str
+    bag: str
+    window_start: int
+    stack: str  # the stack's name in the campaign
+    stack_entry: Any  # the config entry that builds its StackSpec (str or mapping)
+    algorithm: str
+    budget: int
+    actors: int
+    objective: str
+    seed: int
+    reruns: int
+    plan_timeout: float
+    parameters: Mapping[str, Any] = field(default_factory=dict)
+
+    def identity(self) -> dict[str, Any]:
+        """The IDENTITY columns of results.csv (and the bag)."""
+        return {
+            "attack": self.key, "scenario": self.scenario, "window_start": self.window_start, "stack": self.stack,
+            "algorithm": self.algorithm, "budget": self.budget, "actors": self.actors, "objective": self.objective,
+            "seed": self.seed, "bag": self.bag,
+        }  # fmt: skip
+
+    def as_json(self) -> dict[str, Any]:
+        return {name: getattr(self, name) for name in self.__dataclass_fields__}
+
+    @staticmethod
+    def from_json(values: Mapping[str, Any]) -> AttackPlan:
+        return AttackPlan(**values)
+
+    def options(self, out_dir: Path, config_dir: Path) -> AttackOptions:
+        """The attack's options (the objective preset goes to the scorer's parameters)."""
+        overrides = json.loads(json.dumps(self.parameters))
+        scorer = overrides.setdefault("scorer", {})
+        scorer.setdefault("objective", {})["preset"] = self.objective
+        return AttackOptions(
+            bag=Path(self.bag), out_dir=out_dir, stack=stack_spec(self.stack_entry, config_dir),
+            algorithm=self.algorithm, queries=self.budget, actors=self.actors, seed=self.seed,
+            window_start_frame=self.window_start, plan_timeout=self.plan_timeout, reruns=self.reruns,
+            parameter_overrides=overrides, visual_report=False,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A checked campaign configuration."""
+
+    path: Path
+    digest: str  # of the configuration's text: a campaign folder belongs to one configuration
+    scenarios: tuple[ScenarioSource, ...]
+    stacks: Mapping[str, Any]  # campaign name -> config entry
+    algorithms: Mapping[str, int]
+    actors: tuple[int, ...]
+    objectives: tuple[str, ...]
+    seeds: tuple[int, ...]
+    reruns: int
+    transfer: bool
+    failure: FailureRule
+    parameters: Mapping[str, Any]
+    plan_timeout: float
+
+
+def _fail(path: Path, key: str, problem: str) -> CampaignError:
+    return CampaignError(f"{path}: {key}: {problem}")
+
+
+def _unknown(path: Path, where: str, values: Mapping[str, Any], known: Sequence[str]) -> None:
+    for key in values:
+        if key not in known:
+            raise _fail(path, f"{where}{key}", f"unknown key (known: {', '.join(known)})")
+
+
+def _int_list(path: Path, key: str, value: Any, minimum: int) -> tuple[int, ...]:
+    items = value if isinstance(value, list) else [value]
+    if not items or not all(isinstance(v, int) and not isinstance(v, bool) and v >= minimum for v in items):
+        raise _fail(path, key, f"expected an integer >= {minimum} or a list of them, got {value!r}")
+    return tuple(items)
+
+
+def stack_spec(entry: Any, config_dir: Path) -> StackSpec:
+    """The StackSpec of a `stacks` entry: "reference", "learned", or {name, command, remap, remap_mode}."""
+    if isinstance(entry, str):
+        return StackSpec.parse(entry)
+    spec = StackSpec.parse(str(entry["command"]), dict(entry.get("remap") or {}))
+    params = tuple((config_dir / p).resolve() for p in entry.get("params") or ())
+    return StackSpec(
+        str(entry["name"]), spec.command, spec.remappings, str(entry.get("remap_mode", "relay")), params,
+        sim_time=spec.sim_time,
+    )  # fmt: skip
+
+
+def _stacks(path: Path, value: Any) -> dict[str, Any]:
+    if not isinstance(value, list) or not value:
+        raise _fail(path, "stacks", "expected a non-empty list (reference, learned, or {name, command, remap})")
+    stacks: dict[str, Any] = {}
+    for index, entry in enumerate(value):
+        where = f"stacks[{index}]"
+        if isinstance(entry, str):
+            if entry not in ("reference", "learned"):
+                raise _fail(path, where, f"{entry!r}: not a reference stack (reference, learned); give a mapping "
+                            "{name, command} for your own")  # fmt: skip
+            name = entry
+        elif isinstance(entry, dict):
+            _unknown(path, f"{where}.", entry, STACK_KEYS)
+            if not isinstance(entry.get("name"), str) or not isinstance(entry.get("command"), str):
+                raise _fail(path, where, "a stack of your own needs a name and a command (strings)")
+            name = entry["name"]
+        else:
+            raise _fail(path, where, f"expected a stack name or a mapping, got {entry!r}")
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name in stacks:
+            raise _fail(path, where, f"stack name {name!r} is not a unique name of letters, digits, _ . -")
+        try:
+            stack_spec(entry, path.parent)
+        except ScenarioError as error:
+            raise _fail(path, where, str(error)) from None
+        stacks[name] = entry
+    return stacks
+
+
+def _algorithms(path: Path, value: Any) -> dict[str, int]:
+    if not isinstance(value, dict) or not value:
+        raise _fail(path, "algorithms", "expected a mapping of algorithm to query budget, e.g. {bo: 75}")
+    for name, budget in value.items():
+        if name not in ALGORITHM_NAMES:
+            raise _fail(path, f"algorithms.{name}", f"unknown algorithm (known: {', '.join(ALGORITHM_NAMES)})")
+        if not isinstance(budget, int) or isinstance(budget, bool) or budget < 1:
+            raise _fail(path, f"algorithms.{name}", f"the query budget must be a positive integer, got {budget!r}")
+    return {str(k): int(v) for k, v in value.items()}
+
+
+def _bag_folder(path: Path, key: str, bag: Path) -> Path:
+    if not (bag / "metadata.yaml").is_file():
+        raise _fail(path, key, f"{bag} is not a rosbag2 folder (no metadata.yaml)")
+    return bag.resolve()
+
+
+def _windows(path: Path, key: str, value: Any) -> Any:
+    if value in ("curated", "all"):
+        return value
+    if isinstance(value, dict) and len(value) == 1:
+        ((kind, arg),) = value.items()
+        if kind == "curated" and isinstance(arg, int) and not isinstance(arg, bool) and arg >= 1:
+            return {"curated": arg}
+        if kind == "starts":
+            return {"starts": list(_int_list(path, f"{key}.starts", arg, 0))}
+    raise _fail(path, key, f"expected curated, all, {{curated: K}} or {{starts: [FRAME, ...]}}, got {value!r}")
+
+
+def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
+    if not isinstance(value, list) or not value:
+        raise _fail(path, "scenarios", "expected a non-empty list of {bag | bags | synthetic, windows}")
+    sources: list[ScenarioSource] = []
+    for index, entry in enumerate(value):
+        where = f"scenarios[{index}]"
+        if not isinstance(entry, dict):
+            raise _fail(path, where, f"expected a mapping, got {entry!r}")
+        _unknown(path, f"{where}.", entry, SCENARIO_KEYS)
+        kinds = [k for k in ("bag", "bags", "synthetic") if k in entry]
+        if len(kinds) != 1:
+            raise _fail(path, where, "needs exactly one of bag, bags, synthetic")
+        windows = _windows(path, f"{where}.windows", entry.get("windows", "curated"))
+        kind = kinds[0]
+        if kind == "bag":
+            bag = _bag_folder(path, f"{where}.bag", path.parent / str(entry["bag"]))
+            sources.append(ScenarioSource(bag.name, bag, windows))
+        elif kind == "bags":
+            folder = path.parent / str(entry["bags"])
+            if not folder.is_dir():
+                raise _fail(path, f"{where}.bags", f"{folder} is not a folder")
+            bags = sorted(p.resolve() for p in folder.iterdir() if (p / "metadata.yaml").is_file())
+            if not bags:
+                raise _fail(path, f"{where}.bags", f"{folder} holds no rosbag2 folder")
+            sources.extend(ScenarioSource(bag.name, bag, windows) for bag in bags)
+        else:
+            synthetic = entry["synthetic"]
+            if not isinstance(synthetic, dict) or len(synthetic) != 1:
+                raise _fail(path, f"{where}.synthetic", "expected {seeds: [...]} or {seed_range: [FIRST, END]}")
+            _unknown(path, f"{where}.synthetic.", synthetic, SYNTHETIC_KEYS)
+            if "seeds" in synthetic:
+                seeds = _int_list(path, f"{where}.synthetic.seeds", synthetic["seeds"], 0)
+            else:
+                first, end = _int_list(path, f"{where}.synthetic.seed_range", synthetic["seed_range"], 0)[:2]
+                seeds = tuple(range(first, end))
+            sources.extend(ScenarioSource(f"synthetic_seed{s}", Path(), windows, s) for s in seeds)
+    names = [source.name for source in sources]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise _fail(path, "scenarios", f"scenario {duplicates[0]} is named twice")
+    return tuple(sources)
+
+
+def load_campaign(path: Path) -> Campaign:
+    """Read and check a campaign YAML (CampaignError naming the first problem)."""
+    path = Path(path).resolve()
+    try:
+        text = path.read_text(encoding="utf-8")
+        values = yaml.safe_load(text)
+    except OSError as error:
+        raise CampaignError(f"{path}: cannot read ({error.strerror})") from None
+    except yaml.YAMLError as error:
+        raise CampaignError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+    if not isinstance(values, dict):
+        raise CampaignError(f"{path}: expected a mapping with scenarios, stacks, algorithms")
+    _unknown(path, "", values, TOP_KEYS)
+    for required in ("scenarios", "stacks", "algorithms"):
+        if required not in values:
+            raise _fail(path, required, "missing")
+    objectives = values.get("objectives", ["M5"])
+    objectives = objectives if isinstance(objectives, list) else [objectives]
+    for name in objectives:
+        if name not in PRESET_NAMES:
+            raise _fail(path, "objectives", f"{name!r} is not one of {', '.join(PRESET_NAMES)}")
+    failure = values.get("failure") or {}
+    if not isinstance(failure, dict):
+        raise _fail(path, "failure", "expected {collision: true|false, adversarial_loss_above: VALUE|null}")
+    _unknown(path, "failure.", failure, FAILURE_KEYS)
+    parameters = values.get("parameters") or {}
+    if not isinstance(parameters, dict) or not all(isinstance(v, dict) for v in parameters.values()):
+        raise _fail(path, "parameters", "expected {node: {parameter: value}}")
+    reruns = _int_list(path, "reruns", values.get("reruns", 1), 0)
+    plan_timeout = values.get("plan_timeout", 10.0)
+    if not isinstance(plan_timeout, (int, float)) or not math.isfinite(plan_timeout) or plan_timeout <= 0:
+        raise _fail(path, "plan_timeout", f"expected a positive number of seconds, got {plan_timeout!r}")
+    return Campaign(
+        path=path,
+        digest=hashlib.sha256(text.encode()).hexdigest()[:16],
+        scenarios=_scenarios(path, values["scenarios"]),
+        stacks=_stacks(path, values["stacks"]),
+        algorithms=_algorithms(path, values["algorithms"]),
+        actors=_int_list(path, "actors", values.get("actors", [1]), 1),
+        objectives=tuple(str(o) for o in objectives),
+        seeds=_int_list(path, "seeds", values.get("seeds", [0]), 0),
+        reruns=reruns[0],
+        transfer=bool(values.get("transfer", True)),
+        failure=FailureRule(bool(failure.get("collision", True)), failure.get("adversarial_loss_above")),
+        parameters=parameters,
+        plan_timeout=float(plan_timeout),
+    )
+
+
+def materialize(campaign: Campaign, logs_dir: Path) -> Campaign:
+    """The campaign with its synthetic logs written under logs_dir (kept when already there)."""
+    from advsim_ros.io.synthetic import write_synthetic_bag
+
+    sources = []
+    for source in campaign.scenarios:
+        if source.synthetic_seed is not None:
+            bag = logs_dir / source.name
+            if not (bag / "metadata.yaml").is_file():
+                write_synthetic_bag(bag, seed=source.synthetic_seed)
+            source = ScenarioSource(source.name, bag.resolve(), source.windows, source.synthetic_seed)
+        sources.append(source)
+    return Campaign(**{**campaign.__dict__, "scenarios": tuple(sources)})
+
+
+def window_starts(campaign: Campaign, source: ScenarioSource, params_dir: Path | None = None) -> list[int]:
+    """The first frames of the windows to attack in one log (checked against the log's length)."""
+    from advsim_ros.io.bag import read_scenario_bag
+
+    params = params_dir or default_params_dir()
+    scenario = read_scenario_bag(source.bag, load_sweeps=False)
+    where = f"scenarios[{source.name}].windows"
+    if isinstance(source.windows, dict) and "starts" in source.windows:
+        for start in source.windows["starts"]:
+            try:
+                WindowConfig(window_start_frame=start).frame_indices(scenario.num_frames)
+            except ScenarioError as error:
+                raise _fail(campaign.path, where, str(error)) from None
+        return list(source.windows["starts"])
+    curation_file = params / "curation.yaml"
+    config = load_curation_config(curation_file) if curation_file.exists() else CurationConfig()
+    try:
+        candidates = curate_windows(scenario, config)
+    except ScenarioError as error:
+        raise _fail(campaign.path, where, str(error)) from None
+    if source.windows == "all":
+        return [w.start_frame for w in candidates]
+    count = 1 if source.windows == "curated" else int(source.windows["curated"])
+    ranked = sorted(candidates, key=lambda w: (-w.collision_rate, w.start_frame))
+    return sorted(w.start_frame for w in ranked[:count])
+
+
+def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPlan]:
+    """Every attack of the campaign, in a stable order (scenario, window, stack, algorithm, actors, objective, seed)."""
+    plans: list[AttackPlan] = []
+    for source in campaign.scenarios:
+        for start in window_starts(campaign, source, params_dir):
+            for stack, (algorithm, budget), actors, objective, seed in itertools.product(
+                campaign.stacks, campaign.algorithms.items(), campaign.actors, campaign.objectives, campaign.seeds
+            ):
+                key = f"{source.name}-w{start:04d}-{stack}-{algorithm}{budget}-m{actors}-{objective}-s{seed}"
+                plans.append(
+                    AttackPlan(
+                        key=re.sub(r"[^A-Za-z0-9_.-]", "_", key), scenario=source.name, bag=str(source.bag),
+                        window_start=start, stack=stack, stack_entry=campaign.stacks[stack], algorithm=algorithm,
+                        budget=budget, actors=actors, objective=objective, seed=seed, reruns=campaign.reruns,
+                        plan_timeout=campaign.plan_timeout, parameters=campaign.parameters,
+                    )  # fmt: skip
+                )
+    return plans

@@ -1,0 +1,83 @@
+"""The campaign journal: one line per finished job, appended and fsync'd by the driver as it finishes.
+
+The header names the configuration (its digest); a folder holds one campaign. A driver killed at
+any point leaves a journal whose complete lines all stand (a torn last line is dropped on
+reopening). Running the campaign again skips every journaled job; a job that finished but was
+not journaled yet is picked up from its own folder's result file (campaign.worker), not re-run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.campaign.config import CampaignError
+from advsim_ros.core.atomic import write_text_atomically
+
+JOURNAL_NAME = "campaign.jsonl"
+VERSION = 1
+
+
+class CampaignJournal:
+    """Finished jobs by key ("attack/KEY" or "transfer/KEY/TARGET"), in the order they finished."""
+
+    def __init__(self, path: Path, entries: dict[str, dict[str, Any]]) -> None:
+        self.path = path
+        self.entries = entries
+
+    @staticmethod
+    def open(out_dir: Path, digest: str, config: Path) -> CampaignJournal:
+        path = out_dir / JOURNAL_NAME
+        if not path.exists():
+            header = {"campaign_journal": VERSION, "config_digest": digest, "config": str(config)}
+            write_text_atomically(path, json.dumps(header) + "\n")
+            return CampaignJournal(path, {})
+        lines = path.read_bytes().split(b"\n")
+        try:
+            header = json.loads(lines[0])
+            recorded = header["config_digest"]
+        except (ValueError, KeyError, TypeError):
+            raise CampaignError(f"{path}: not a campaign journal; use another output folder") from None
+        if recorded != digest:
+            raise CampaignError(
+                f"{out_dir} holds a campaign of another configuration ({header.get('config')}, changed since); "
+                "use another output folder or the same configuration"
+            )
+        entries: dict[str, dict[str, Any]] = {}
+        good = len(lines[0]) + 1
+        for line in lines[1:]:
+            if line.strip():
+                try:
+                    entry = json.loads(line)
+                    entries[str(entry["job"])] = entry
+                except (ValueError, KeyError, TypeError):
+                    break  # torn by a kill mid-write: what came before stands
+            good += len(line) + 1
+        if good < path.stat().st_size:
+            with path.open("r+b") as stream:
+                stream.truncate(good)
+                os.fsync(stream.fileno())
+        return CampaignJournal(path, entries)
+
+    def __contains__(self, job: str) -> bool:
+        """Finished without an error (a job that failed is tried again when the campaign is run again)."""
+        return job in self.entries and "error" not in self.entries[job]
+
+    def append(self, job: str, result: Mapping[str, Any]) -> None:
+        if job in self:
+            return
+        entry = {"job": job, **result}
+        with self.path.open("a", encoding="utf-8") as stream:
+            stream.write(json.dumps(entry) + "\n")
+            stream.flush()
+            os.fsync(stream.fileno())
+        self.entries[job] = entry
+
+    def of_kind(self, kind: str, finished: bool = True) -> list[dict[str, Any]]:
+        """Entries of one kind of job ("attack", "transfer"): finished ones, or (finished=False) every last entry."""
+        return [
+            entry for job, entry in self.entries.items() if job.startswith(f"{kind}/") and (not finished or job in self)
+        ]

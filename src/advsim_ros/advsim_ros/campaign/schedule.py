@@ -1,0 +1,165 @@
+"""Running a campaign on Ray: every attack one Ray task (one isolated graph), journaled as it finishes.
+
+`ray.init()` starts a Ray instance on this machine unless an address of a running cluster is
+given. Each job is a Ray task that declares the CPU and memory it needs and runs the attack in a
+process of its own (campaign.worker); at most ``workers`` jobs are in flight at once. After an
+attack whose adversarial scenario counts as a failure, its scenario is replayed on every other
+stack of the campaign (transfer, Table 3). Finished jobs go to the campaign journal at once, so
+a killed driver loses nothing finished; the same command resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.campaign.config import AttackPlan, Campaign, expand, load_campaign, materialize
+from advsim_ros.campaign.journal import CampaignJournal
+from advsim_ros.campaign.results import failed_row
+from advsim_ros.campaign.worker import RESULT_NAME
+from advsim_ros.core.atomic import write_json_atomically
+
+ATTACK_CPUS = 1.0  # Ray resources an attack asks for: its graph is mostly one busy process at a time
+ATTACK_MEMORY = 2 * 1024**3  # [bytes]; peak of a KITTI attack with a cached background model (bench_campaign)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of work: an attack, or the replay of an attack's found scenario on another stack."""
+
+    name: str  # journal key: attack/KEY or transfer/KEY/TARGET
+    spec: dict[str, Any]  # the worker's JOB.json
+
+
+def run_job(spec: dict[str, Any]) -> dict[str, Any]:
+    """Body of the Ray task: the worker process for one job, tied to this one; its result or its error."""
+    from advsim_ros.ros.launcher import die_with_parent
+
+    out_dir = Path(spec["out_dir"])
+    result_file = out_dir / RESULT_NAME
+    if result_file.is_file():  # finished before the driver could journal it
+        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    job_file = out_dir / "job.json"
+    write_json_atomically(job_file, spec)
+    with (out_dir / "job.log").open("ab") as log:
+        completed = subprocess.run(
+            die_with_parent([sys.executable, "-m", "advsim_ros.campaign.worker", str(job_file)]),
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, check=False,
+        )  # fmt: skip
+    if completed.returncode == 0 and result_file.is_file():
+        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
+    lines = (out_dir / "job.log").read_text(encoding="utf-8", errors="replace").strip().splitlines()
+    reason = next((line for line in reversed(lines) if line.strip()), f"exit status {completed.returncode}")
+    return {"ok": False, "error": f"{reason} (log: {out_dir / 'job.log'})"}
+
+
+def _attack_job(plan: AttackPlan, out_dir: Path, config_dir: Path) -> Job:
+    relative = f"attacks/{plan.key}"
+    spec = {
+        "kind": "attack", "plan": plan.as_json(), "out_dir": str(out_dir / relative), "relative_dir": relative,
+        "config_dir": str(config_dir),
+    }  # fmt: skip
+    return Job(f"attack/{plan.key}", spec)
+
+
+def _transfer_jobs(campaign: Campaign, entry: dict[str, Any], out_dir: Path) -> Iterator[Job]:
+    """Replays of a found failure on every other stack of the campaign."""
+    row = entry["row"]
+    if not campaign.transfer or not entry.get("bag") or not campaign.failure.failed(entry.get("adversarial")):
+        return
+    for target, stack_entry in campaign.stacks.items():
+        if target == row["stack"]:
+            continue
+        relative = f"transfer/{row['attack']}--on--{target}"
+        spec = {
+            "kind": "transfer", "bag": entry["bag"], "stack_entry": stack_entry, "source": row["attack"],
+            "source_stack": row["stack"], "target_stack": target, "out_dir": str(out_dir / relative),
+            "relative_dir": relative, "config_dir": str(campaign.path.parent), "plan_timeout": campaign.plan_timeout,
+            "parameters": campaign.parameters,
+        }  # fmt: skip
+        yield Job(f"transfer/{row['attack']}/{target}", spec)
+
+
+def _start_ray(workers: int, address: str | None) -> Any:
+    import ray
+
+    if address:
+        ray.init(address=address, logging_level="WARNING", log_to_driver=False)
+    else:  # this machine: as many CPUs as workers, so Ray itself never runs more than that
+        ray.init(num_cpus=workers, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+    return ray
+
+
+def run_campaign(
+    config: Path,
+    out_dir: Path,
+    workers: int = 1,
+    address: str | None = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+) -> CampaignJournal:
+    """Run (or resume) every job of the campaign; returns its journal. Checks the config first, starts nothing on error."""
+    campaign = load_campaign(config)
+    if workers < 1:
+        raise ValueError(f"--workers: must be at least 1, got {workers}")
+    out_dir = out_dir.resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    journal = CampaignJournal.open(out_dir, campaign.digest, campaign.path)
+    campaign = materialize(campaign, out_dir / "logs")
+    plans = expand(campaign)
+    todo = [_attack_job(p, out_dir, campaign.path.parent) for p in plans if f"attack/{p.key}" not in journal]
+    for entry in journal.of_kind("attack"):
+        todo.extend(job for job in _transfer_jobs(campaign, entry, out_dir) if job.name not in journal)
+    total_attacks = len(plans)
+    finished = journal.of_kind("attack")
+    state = {"attacks": total_attacks, "done": len(finished), "errors": 0}
+    state["failures"] = sum(1 for e in finished if campaign.failure.failed(e.get("adversarial")))
+    if progress is not None:
+        progress(dict(state))
+    if not todo:
+        return journal
+    ray = _start_ray(workers, address)
+    task = ray.remote(run_job).options(num_cpus=ATTACK_CPUS, memory=ATTACK_MEMORY, max_retries=0)
+    try:
+        in_flight: dict[Any, Job] = {}
+        while todo or in_flight:
+            while todo and len(in_flight) < workers:
+                job = todo.pop(0)
+                in_flight[task.remote(job.spec)] = job
+            ready, _ = ray.wait(list(in_flight), num_returns=1)
+            job = in_flight.pop(ready[0])
+            outcome = ray.get(ready[0])
+            entry = _journal_entry(job, outcome)
+            journal.append(job.name, entry)
+            if job.spec["kind"] == "attack":
+                state["done" if outcome["ok"] else "errors"] += 1
+                if campaign.failure.failed(entry.get("adversarial")):
+                    state["failures"] += 1
+                todo.extend(_transfer_jobs(campaign, journal.entries[job.name], out_dir))
+            if progress is not None:
+                progress(dict(state))
+    finally:
+        ray.shutdown()
+    return journal
+
+
+def _journal_entry(job: Job, outcome: dict[str, Any]) -> dict[str, Any]:
+    """What the journal keeps of a job; a job that failed keeps its error (and is tried again on resume)."""
+    if outcome["ok"]:
+        return {k: v for k, v in outcome.items() if k != "ok"}
+    spec = job.spec
+    if spec["kind"] == "attack":
+        plan = AttackPlan.from_json(spec["plan"])
+        row = failed_row(plan.identity(), outcome["error"], spec["relative_dir"])
+        return {"row": row, "curve": [], "error": outcome["error"]}
+    row = {
+        "attack": spec["source"], "source_stack": spec["source_stack"], "target_stack": spec["target_stack"],
+        "collision_5s": math.nan, "adversarial_loss": math.nan, "status": "failed", "out_dir": spec["relative_dir"],
+    }  # fmt: skip
+    return {"row": row, "error": outcome["error"]}

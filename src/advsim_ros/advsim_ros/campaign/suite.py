@@ -1,0 +1,153 @@
+"""Found failures as a regression suite, and `advsim regress`: replay every scenario on a stack, gate on it.
+
+A campaign exports the adversarial scenario of every attack that counts as a failure into
+OUTDIR/suite/NAME (a scenario bag each) with index.json naming them, the stack each was found
+on, its recorded score and the failure rule. `regress` replays every scenario of a suite on a
+stack (each replay one isolated graph, campaign.worker) and reports each as a JUnit test case:
+failed when the replayed scenario still counts as a failure, an error when it could not be scored.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.campaign.config import CampaignError, FailureRule
+from advsim_ros.core.atomic import atomic_folder, write_json_atomically, write_text_atomically
+
+INDEX_NAME = "index.json"
+
+
+def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: FailureRule) -> Path:
+    """Copy every failing attack's adversarial bag into out_dir/suite and (re)write its index; the suite folder."""
+    suite = out_dir / "suite"
+    suite.mkdir(parents=True, exist_ok=True)
+    scenarios = []
+    for entry in attacks:
+        row, bag = entry["row"], entry.get("bag")
+        if not bag or not rule.failed(entry.get("adversarial")):
+            continue
+        name = str(row["attack"])
+        target = suite / name
+        if not (target / "metadata.yaml").is_file():
+            with atomic_folder(target, overwrite=True) as staged:
+                shutil.copytree(bag, staged)
+        recorded = entry["adversarial"]
+        scenarios.append(
+            {
+                "name": name, "bag": name, "found_on": row["stack"], "scenario": row["scenario"],
+                "window_start": row["window_start"], "algorithm": row["algorithm"],
+                "recorded": {k: recorded.get(k) for k in ("adversarial_loss", "collision_3s", "collision_5s")},
+            }
+        )  # fmt: skip
+    index = {
+        "suite_version": 1,
+        "failure": {"collision": rule.collision, "adversarial_loss_above": rule.adversarial_loss_above},
+        "scenarios": sorted(scenarios, key=lambda s: s["name"]),
+    }
+    write_json_atomically(suite / INDEX_NAME, index)
+    return suite
+
+
+@dataclass(frozen=True)
+class Verdict:
+    name: str
+    outcome: str  # passed | failed | error
+    message: str
+    score: Mapping[str, Any]
+    seconds: float
+
+
+def read_index(suite: Path) -> tuple[FailureRule, list[dict[str, Any]]]:
+    """The failure rule and scenarios of a suite; CampaignError when it is not one."""
+    path = suite / INDEX_NAME
+    try:
+        index = json.loads(path.read_text(encoding="utf-8"))
+        rule = FailureRule(bool(index["failure"]["collision"]), index["failure"]["adversarial_loss_above"])
+        scenarios = list(index["scenarios"])
+    except OSError:
+        raise CampaignError(f"{suite}: not a regression suite (no {INDEX_NAME})") from None
+    except (ValueError, KeyError, TypeError):
+        raise CampaignError(f"{path}: not a valid suite index") from None
+    for scenario in scenarios:
+        if not (suite / scenario["bag"] / "metadata.yaml").is_file():
+            raise CampaignError(f"{suite}: scenario {scenario['name']}: its bag {scenario['bag']} is missing")
+    return rule, scenarios
+
+
+def regress(
+    suite: Path,
+    stack_entry: Any,
+    out_dir: Path,
+    plan_timeout: float = 10.0,
+    progress: Callable[[Verdict], None] | None = None,
+) -> list[Verdict]:
+    """Replay every scenario of the suite on the stack; one verdict each."""
+    from advsim_ros.campaign.schedule import run_job
+
+    rule, scenarios = read_index(suite)
+    verdicts = []
+    for scenario in scenarios:
+        relative = f"replays/{scenario['name']}"
+        spec = {
+            "kind": "transfer", "bag": str((suite / scenario["bag"]).resolve()), "stack_entry": stack_entry,
+            "source": scenario["name"], "source_stack": scenario["found_on"], "target_stack": "regress",
+            "out_dir": str(out_dir / relative), "relative_dir": relative, "config_dir": str(Path.cwd()),
+            "plan_timeout": plan_timeout,
+        }  # fmt: skip
+        shutil.rmtree(out_dir / relative, ignore_errors=True)  # a regression run always replays anew
+        outcome = run_job(spec)
+        seconds = _seconds(out_dir / relative)
+        if not outcome["ok"]:
+            verdict = Verdict(scenario["name"], "error", outcome["error"], {}, seconds)
+        else:
+            row = outcome["row"]
+            score = {"collision_5s": row["collision_5s"], "adversarial_loss": row["adversarial_loss"]}
+            if row["status"] != "ok":
+                verdict = Verdict(scenario["name"], "error", f"the replay was not scored ({row['status']})", score, seconds)
+            elif rule.failed(score):
+                message = f"collision up to 5 s: {bool(score['collision_5s'])}, L_adv {score['adversarial_loss']:.4g}"
+                verdict = Verdict(scenario["name"], "failed", message, score, seconds)
+            else:
+                verdict = Verdict(scenario["name"], "passed", "", score, seconds)
+        verdicts.append(verdict)
+        if progress is not None:
+            progress(verdict)
+    return verdicts
+
+
+def _seconds(replay_dir: Path) -> float:
+    try:
+        return float(json.loads((replay_dir / "summary.json").read_text(encoding="utf-8"))["wall_time_s"])
+    except (OSError, ValueError, KeyError):
+        return math.nan
+
+
+def junit_xml(verdicts: Sequence[Verdict], suite_name: str) -> str:
+    """JUnit XML (one testsuite, a testcase per scenario) for any CI to gate on."""
+    failures = sum(1 for v in verdicts if v.outcome == "failed")
+    errors = sum(1 for v in verdicts if v.outcome == "error")
+    total = sum(v.seconds for v in verdicts if math.isfinite(v.seconds))
+    root = ET.Element("testsuites", name="advsim regress", tests=str(len(verdicts)))
+    node = ET.SubElement(
+        root, "testsuite", name=suite_name, tests=str(len(verdicts)), failures=str(failures), errors=str(errors),
+        time=f"{total:.3f}",
+    )  # fmt: skip
+    for verdict in verdicts:
+        seconds = f"{verdict.seconds:.3f}" if math.isfinite(verdict.seconds) else "0"
+        case = ET.SubElement(node, "testcase", classname=suite_name, name=verdict.name, time=seconds)
+        if verdict.outcome in ("failed", "error"):
+            tag = "failure" if verdict.outcome == "failed" else "error"
+            ET.SubElement(case, tag, message=verdict.message).text = json.dumps(dict(verdict.score))
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def write_junit(path: Path, verdicts: Sequence[Verdict], suite_name: str) -> None:
+    write_text_atomically(path, junit_xml(verdicts, suite_name))

@@ -1,0 +1,77 @@
+"""One job of a campaign (an attack, or the replay of a found scenario on another stack) in a process of its own.
+
+    python -m advsim_ros.campaign.worker JOB.json
+
+A Ray task starts this process (campaign.schedule.run_job) so that every attack gets a fresh
+interpreter and its own ROS domain, as `advsim attack` would; the process is tied to the Ray
+worker (parent-death signal), and its graph to it (ros.launcher), so a dead driver leaves
+nothing running. The job's outcome goes atomically to OUT/job_result.json: that file is what
+"finished" means, and a job that has it is never run again.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.campaign.config import AttackPlan, stack_spec
+from advsim_ros.campaign.results import attack_row, best_curve
+from advsim_ros.core.atomic import write_json_atomically
+
+RESULT_NAME = "job_result.json"
+
+
+def _cost(summary: dict[str, Any], wall_s: float) -> dict[str, float]:
+    """Wall time, CPU seconds and peak memory of the job: its graph's processes and this one."""
+    resources = summary.get("resources") or {}
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    return {
+        "wall_s": wall_s,
+        "cpu_s": float(resources.get("graph_cpu_s", 0.0)) + own.ru_utime + own.ru_stime,
+        "peak_rss_mb": float(resources.get("graph_peak_rss_mb", 0.0)) + own.ru_maxrss / 1024.0,
+    }
+
+
+def run_job(job: dict[str, Any]) -> dict[str, Any]:
+    """Run the job described by job (see campaign.schedule) and return what goes into the campaign journal."""
+    from advsim_ros.attack import AttackOptions, run_attack
+
+    out_dir = Path(job["out_dir"])
+    config_dir = Path(job["config_dir"])
+    started = time.monotonic()
+    if job["kind"] == "attack":
+        plan = AttackPlan.from_json(job["plan"])
+        summary = run_attack(plan.options(out_dir, config_dir)).summary
+        row = attack_row(plan.identity(), summary, _cost(summary, time.monotonic() - started), job["relative_dir"])
+        bag = (summary.get("outputs") or {}).get("adversarial_bag")
+        return {"row": row, "curve": best_curve(summary), "adversarial": summary.get("adversarial"), "bag": bag}
+    options = AttackOptions(
+        bag=Path(job["bag"]), out_dir=out_dir, stack=stack_spec(job["stack_entry"], config_dir), queries=0,
+        window_start_frame=0, replay_only=True, plan_timeout=float(job["plan_timeout"]), visual_report=False,
+        parameter_overrides=job.get("parameters") or {},
+    )  # fmt: skip
+    summary = run_attack(options).summary
+    queries = summary.get("queries") or []
+    score = queries[-1]["score"] if queries else {}
+    row = {
+        "attack": job["source"], "source_stack": job["source_stack"], "target_stack": job["target_stack"],
+        "collision_5s": score.get("collision_5s"), "adversarial_loss": score.get("adversarial_loss"),
+        "status": score.get("status", "failed"), "out_dir": job["relative_dir"],
+    }  # fmt: skip
+    return {"row": row}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    job = json.loads(Path(args[0]).read_text(encoding="utf-8"))
+    result = run_job(job)
+    write_json_atomically(Path(job["out_dir"]) / RESULT_NAME, result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

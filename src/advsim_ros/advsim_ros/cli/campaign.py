@@ -1,0 +1,105 @@
+"""`advsim campaign` (many attacks on Ray, the paper's tables) and `advsim regress` (a suite as a CI gate)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from advsim_ros.cli.common import CommandError
+
+
+def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    campaign = subparsers.add_parser(
+        "campaign", help="attack many scenarios x stacks x algorithms on Ray; report the paper's tables"
+    )
+    campaign.add_argument("config", type=Path, help="campaign YAML (see params/campaign_smoke.yaml)")
+    campaign.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes)")
+    campaign.add_argument("--workers", type=int, default=1, help="attacks at once (default 1; 2 cores: 1 or 2)")
+    campaign.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start one here)")
+    campaign.set_defaults(run=_run_campaign)
+
+    regress = subparsers.add_parser(
+        "regress", help="replay every scenario of a regression suite on a stack; non-zero exit when any fails"
+    )
+    regress.add_argument("suite", type=Path, help="a campaign's OUTDIR/suite (index.json and scenario bags)")
+    regress.add_argument("--stack", default="reference", help='"reference", "learned", or your command line')
+    regress.add_argument(
+        "--remap", action="append", default=[], metavar="CONTRACT:=YOURS", help="your stack's topic name"
+    )
+    regress.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
+    regress.add_argument("-o", "--out", type=Path, default=None, help="replays go here (default: <suite>-regress)")
+    regress.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
+    regress.set_defaults(run=_run_regress)
+
+
+def _progress() -> Any:
+    bars: list[Any] = []
+
+    def update(state: dict[str, Any]) -> None:
+        if not bars:
+            bars.append(tqdm(total=state["attacks"], initial=state["done"], unit="attack", desc="campaign"))
+        bar = bars[0]
+        bar.update(state["done"] - bar.n)
+        bar.set_postfix(failures_found=state["failures"], errors=state["errors"])
+
+    def close() -> None:
+        for bar in bars:
+            bar.close()
+
+    update.close = close  # type: ignore[attr-defined]
+    return update
+
+
+def _run_campaign(args: argparse.Namespace) -> int:
+    from advsim_ros.campaign.outputs import write_campaign_outputs
+    from advsim_ros.campaign.schedule import run_campaign
+
+    progress = _progress()
+    try:
+        journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress)
+    finally:
+        progress.close()
+    written = write_campaign_outputs(args.config, args.out, journal)
+    errors = [entry for entry in journal.of_kind("attack", finished=False) if "error" in entry]
+    for entry in errors:
+        print(f"attack {entry['row']['attack']} failed: {entry['error']}")
+    print(f"report: {written['report_md']}  {written['report_html']}  results: {written['results_csv']}")
+    print(f"regression suite: {written['suite']} ({written['suite_size']} scenarios)")
+    return 1 if errors else 0
+
+
+def _stack_entry(args: argparse.Namespace) -> Any:
+    remap = {}
+    for item in args.remap:
+        source, separator, target = item.partition(":=")
+        if not separator or not source or not target:
+            raise CommandError(f"--remap {item!r}: expected FROM:=TO")
+        remap[source] = target
+    if args.stack in ("reference", "learned") and not remap:
+        return args.stack
+    return {"name": "stack", "command": args.stack, "remap": remap}
+
+
+def _run_regress(args: argparse.Namespace) -> int:
+    from advsim_ros.campaign.config import stack_spec
+    from advsim_ros.campaign.suite import read_index, regress, write_junit
+
+    suite = args.suite.resolve()
+    entry = _stack_entry(args)
+    stack_spec(entry, Path.cwd())  # a bad stack is one line before anything runs
+    _, scenarios = read_index(suite)
+    out = (args.out or suite.with_name(f"{suite.name}-regress")).resolve()
+    print(f"regress: {len(scenarios)} scenarios of {suite} on {args.stack}")
+
+    def show(verdict: Any) -> None:
+        print(f"  {verdict.outcome.upper():7s} {verdict.name}  {verdict.message}", flush=True)
+
+    verdicts = regress(suite, entry, out, args.plan_timeout, show)
+    if args.junit is not None:
+        write_junit(args.junit, verdicts, suite.name)
+    bad = [v for v in verdicts if v.outcome != "passed"]
+    print(f"regress: {len(verdicts) - len(bad)} passed, {len(bad)} failed" + (f"; JUnit: {args.junit}" if args.junit else ""))
+    return 1 if bad else 0
