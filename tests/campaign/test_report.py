@@ -245,3 +245,16 @@ def test_the_html_is_self_contained(campaign: Any) -> None:
     assert '<link rel="stylesheet"' not in text
     assert text.count('src="data:image/png;base64,') == 4  # 2 figures, 2 gallery pictures
     assert 'href="attacks/modular-bo-1-0/adversarial_bag"' in text
+
+
+def test_a_campaign_without_finished_attacks_still_gets_its_report(tmp_path: Path) -> None:
+    failed = [failed_row(_identity(f"a{i}", "modular", algorithm=a), "no stack", f"attacks/a{i}")
+              for i, a in enumerate(("bo", "ga"))]  # fmt: skip
+    for rows in ([], failed):
+        written = write_report(tmp_path / str(len(rows)), rows, [], {}, [])
+        assert set(written) == {"results", "markdown", "html"}
+        markdown = written["markdown"].read_text()
+        assert f"attacks: 0 done, {len(rows)} failed" in markdown
+        assert "Table 1:" not in markdown
+        assert ("Table 5:" in markdown) == bool(rows)  # the campaign varies the algorithm: its levels show '–'
+        assert len(written["results"].read_text().splitlines()) == 1 + len(rows)

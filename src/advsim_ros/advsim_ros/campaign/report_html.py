@@ -20,7 +20,7 @@ from advsim_ros.viz.report import _CSS, _data_uri, _e, _table
 
 _EXTRA_CSS = """
 .gallery { display: flex; flex-wrap: wrap; gap: 1rem; } .gallery figure { width: 22rem; }
-figcaption { font-size: .85rem; } td { white-space: nowrap; }
+figcaption { font-size: .85rem; } td { white-space: nowrap; } .wide { overflow-x: auto; }
 """
 
 
@@ -163,7 +163,7 @@ def render_html(
         if section.note:
             parts.append(f'<p class="muted">{_e(section.note)}</p>')
         if section.table is not None:
-            parts.append(_table(section.table.header, section.table.rows))
+            parts.append(f'<div class="wide">{_table(section.table.header, section.table.rows)}</div>')
         parts.append(_figure_html(section))
     if gallery:
         parts += ['<h2 id="gallery">Found failures</h2>', _gallery_html(gallery)]
