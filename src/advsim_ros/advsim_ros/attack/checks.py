@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from advsim_ros.attack.options import AttackOptions
+from advsim_ros.attack.options import AttackOptions, StackSpec
 from advsim_ros.attack.params import node_files, node_parameters, section
 from advsim_ros.core.curation import CurationConfig, best_window, curate_windows, load_curation_config
 from advsim_ros.core.drivable import DrivableConfig
@@ -47,8 +47,9 @@ def _fields(config_type: type[Any]) -> set[str]:
     return {field.name for field in dataclasses.fields(config_type)}
 
 
-def _stack_resolvable(options: AttackOptions) -> None:
-    executable = options.stack.command[0]
+def check_stack_command(stack: StackSpec) -> None:
+    """ScenarioError unless the stack's executable exists (a path) or is on PATH."""
+    executable = stack.command[0]
     if os.sep in executable:
         if not (Path(executable).is_file() and os.access(executable, os.X_OK)):
             raise ScenarioError(f"--stack: {executable} is not an executable file")
@@ -70,7 +71,7 @@ def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
         raise ScenarioError(f"{bag}: not a rosbag2 folder (no metadata.yaml)")
     if not options.replay_only and options.algorithm not in ALGORITHM_NAMES:
         raise ScenarioError(f"--algo {options.algorithm!r}: not one of {', '.join(ALGORITHM_NAMES)}")
-    _stack_resolvable(options)
+    check_stack_command(options.stack)
     params_dir = options.params
     files = {node: node_files(params_dir, node) for node in GRAPH_NODES}
     parameters = {node: node_parameters(files[node], node, overrides) for node in GRAPH_NODES}

@@ -35,6 +35,7 @@ from typing import Any
 
 import yaml
 
+from advsim_ros.attack.checks import check_stack_command
 from advsim_ros.attack.options import AttackOptions, StackSpec, default_params_dir
 from advsim_ros.core.curation import CurationConfig, curate_windows, load_curation_config
 from advsim_ros.core.episode import WindowConfig
@@ -198,7 +199,7 @@ def _stacks(path: Path, value: Any) -> dict[str, Any]:
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name in stacks:
             raise _fail(path, where, f"stack name {name!r} is not a unique name of letters, digits, _ . -")
         try:
-            stack_spec(entry, path.parent)
+            check_stack_command(stack_spec(entry, path.parent))
         except ScenarioError as error:
             raise _fail(path, where, str(error)) from None
         stacks[name] = entry
@@ -379,10 +380,20 @@ def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPla
                 key = f"{source.name}-w{start:04d}-{stack}-{algorithm}{budget}-m{actors}-{objective}-s{seed}"
                 plans.append(
                     AttackPlan(
-                        key=re.sub(r"[^A-Za-z0-9_.-]", "_", key), scenario=source.name, bag=str(source.bag),
-                        window_start=start, stack=stack, stack_entry=campaign.stacks[stack], algorithm=algorithm,
-                        budget=budget, actors=actors, objective=objective, seed=seed, reruns=campaign.reruns,
-                        plan_timeout=campaign.plan_timeout, parameters=campaign.parameters,
-                    )  # fmt: skip
+                        key=re.sub(r"[^A-Za-z0-9_.-]", "_", key),
+                        scenario=source.name,
+                        bag=str(source.bag),
+                        window_start=start,
+                        stack=stack,
+                        stack_entry=campaign.stacks[stack],
+                        algorithm=algorithm,
+                        budget=budget,
+                        actors=actors,
+                        objective=objective,
+                        seed=seed,
+                        reruns=campaign.reruns,
+                        plan_timeout=campaign.plan_timeout,
+                        parameters=campaign.parameters,
+                    )
                 )
     return plans

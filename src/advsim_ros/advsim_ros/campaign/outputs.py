@@ -25,7 +25,9 @@ def write_campaign_outputs(config: Path, out_dir: Path, journal: CampaignJournal
         picture = out_dir / row["out_dir"] / "bev.png"
         if picture.is_file():
             title = f"{row['stack']} on {row['scenario']} @ {row['window_start']} ({row['algorithm']})"
-            gallery.append({"attack": row["attack"], "bev_png": picture, "bag": f"suite/{row['attack']}", "title": title})
+            gallery.append(
+                {"attack": row["attack"], "bev_png": picture, "bag": f"suite/{row['attack']}", "title": title}
+            )
     written = write_report(
         out_dir,
         [entry["row"] for entry in attacks],
@@ -36,7 +38,7 @@ def write_campaign_outputs(config: Path, out_dir: Path, journal: CampaignJournal
     return {
         "suite": suite,
         "suite_size": sum(1 for p in suite.iterdir() if p.is_dir()),
-        "results_csv": written["results_csv"],
-        "report_md": written["report_md"],
-        "report_html": written["report_html"],
+        "results_csv": written["results"],
+        "report_md": written["markdown"],
+        "report_html": written["html"],
     }

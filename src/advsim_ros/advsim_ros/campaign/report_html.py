@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.core.atomic import atomic_file
-from advsim_ros.viz.report import _CSS, _data_uri, _e, _table
+from advsim_ros.viz.report import REPORT_CSS, data_uri, esc, html_table
 
 _EXTRA_CSS = """
 .gallery { display: flex; flex-wrap: wrap; gap: 1rem; } .gallery figure { width: 22rem; }
@@ -123,21 +123,21 @@ def curve_plot(path: Path, medians: Mapping[str, tuple[np.ndarray, int]]) -> Non
 def _figure_html(section: Section) -> str:
     if section.figure is None:
         return ""
-    uri = _data_uri(section.figure, "image/png")
+    uri = data_uri(section.figure, "image/png")
     if uri is None:
-        return f'<p class="muted">{_e(section.figure.name)} was not written.</p>'
-    return f'<figure><img id="{_e(section.anchor)}-figure" alt="{_e(section.figure_alt)}" src="{uri}"></figure>'
+        return f'<p class="muted">{esc(section.figure.name)} was not written.</p>'
+    return f'<figure><img id="{esc(section.anchor)}-figure" alt="{esc(section.figure_alt)}" src="{uri}"></figure>'
 
 
 def _gallery_html(items: Sequence[GalleryItem]) -> str:
     figures = []
     for number, item in enumerate(items):
-        uri = _data_uri(item.png, "image/png")
-        picture = (f'<img id="gallery-{number}" alt="{_e(item.title)}" src="{uri}">' if uri
-                   else f'<span class="muted">{_e(item.png.name)} is missing</span>')  # fmt: skip
+        uri = data_uri(item.png, "image/png")
+        picture = (f'<img id="gallery-{number}" alt="{esc(item.title)}" src="{uri}">' if uri
+                   else f'<span class="muted">{esc(item.png.name)} is missing</span>')  # fmt: skip
         figures.append(
-            f'<figure><a href="{_e(item.bag)}">{picture}</a><figcaption>{_e(item.title)} — '
-            f'<code>{_e(item.attack)}</code>, bag <a href="{_e(item.bag)}">{_e(item.bag)}</a></figcaption></figure>'
+            f'<figure><a href="{esc(item.bag)}">{picture}</a><figcaption>{esc(item.title)} — '
+            f'<code>{esc(item.attack)}</code>, bag <a href="{esc(item.bag)}">{esc(item.bag)}</a></figcaption></figure>'
         )
     return '<div class="gallery">' + "".join(figures) + "</div>"
 
@@ -152,18 +152,18 @@ def render_html(
         '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         '<link rel="icon" href="data:,">',  # no favicon request
-        f"<title>{_e(title)}</title>",
-        f"<style>{_CSS}{_EXTRA_CSS}</style></head><body>",
-        f"<h1>{_e(title)}</h1>",
-        '<ul id="summary">' + "".join(f"<li>{_e(line)}</li>" for line in header) + "</ul>",
-        "<p>" + " · ".join(f'<a href="{_e(href)}">{_e(label)}</a>' for href, label in links) + "</p>",
+        f"<title>{esc(title)}</title>",
+        f"<style>{REPORT_CSS}{_EXTRA_CSS}</style></head><body>",
+        f"<h1>{esc(title)}</h1>",
+        '<ul id="summary">' + "".join(f"<li>{esc(line)}</li>" for line in header) + "</ul>",
+        "<p>" + " · ".join(f'<a href="{esc(href)}">{esc(label)}</a>' for href, label in links) + "</p>",
     ]
     for section in sections:
-        parts.append(f'<h2 id="{_e(section.anchor)}">{_e(section.title)}</h2>')
+        parts.append(f'<h2 id="{esc(section.anchor)}">{esc(section.title)}</h2>')
         if section.note:
-            parts.append(f'<p class="muted">{_e(section.note)}</p>')
+            parts.append(f'<p class="muted">{esc(section.note)}</p>')
         if section.table is not None:
-            parts.append(f'<div class="wide">{_table(section.table.header, section.table.rows)}</div>')
+            parts.append(f'<div class="wide">{html_table(section.table.header, section.table.rows)}</div>')
         parts.append(_figure_html(section))
     if gallery:
         parts += ['<h2 id="gallery">Found failures</h2>', _gallery_html(gallery)]

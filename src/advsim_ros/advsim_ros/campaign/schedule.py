@@ -11,6 +11,7 @@ a killed driver loses nothing finished; the same command resumes.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import subprocess
 import sys
@@ -20,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from advsim_ros.campaign.config import AttackPlan, Campaign, expand, load_campaign, materialize
-from advsim_ros.campaign.journal import CampaignJournal
+from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
 from advsim_ros.campaign.worker import RESULT_NAME
 from advsim_ros.core.atomic import write_json_atomically
@@ -49,6 +50,8 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     job_file = out_dir / "job.json"
     write_json_atomically(job_file, spec)
     with (out_dir / "job.log").open("ab") as log:
+        log.write(f"advsim campaign: {spec['kind']} job started in {out_dir}\n".encode())
+        log.flush()
         completed = subprocess.run(
             die_with_parent([sys.executable, "-m", "advsim_ros.campaign.worker", str(job_file)]),
             stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, check=False,
@@ -91,9 +94,9 @@ def _start_ray(workers: int, address: str | None) -> Any:
     import ray
 
     if address:
-        ray.init(address=address, logging_level="WARNING", log_to_driver=False)
+        ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
     else:  # this machine: as many CPUs as workers, so Ray itself never runs more than that
-        ray.init(num_cpus=workers, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+        ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING, log_to_driver=False)
     return ray
 
 
@@ -104,15 +107,16 @@ def run_campaign(
     address: str | None = None,
     progress: Callable[[dict[str, Any]], None] | None = None,
 ) -> CampaignJournal:
-    """Run (or resume) every job of the campaign; returns its journal. Checks the config first, starts nothing on error."""
+    """Run (or resume) every job of the campaign; returns its journal. A bad config starts nothing."""
     campaign = load_campaign(config)
     if workers < 1:
         raise ValueError(f"--workers: must be at least 1, got {workers}")
     out_dir = out_dir.resolve()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    journal = CampaignJournal.open(out_dir, campaign.digest, campaign.path)
+    if (out_dir / JOURNAL_NAME).exists():  # another campaign's folder is refused before anything is written
+        CampaignJournal.open(out_dir, campaign.digest, campaign.path)
     campaign = materialize(campaign, out_dir / "logs")
-    plans = expand(campaign)
+    plans = expand(campaign)  # every window checked against its log
+    journal = CampaignJournal.open(out_dir, campaign.digest, campaign.path)
     todo = [_attack_job(p, out_dir, campaign.path.parent) for p in plans if f"attack/{p.key}" not in journal]
     for entry in journal.of_kind("attack"):
         todo.extend(job for job in _transfer_jobs(campaign, entry, out_dir) if job.name not in journal)

@@ -110,7 +110,9 @@ def regress(
             row = outcome["row"]
             score = {"collision_5s": row["collision_5s"], "adversarial_loss": row["adversarial_loss"]}
             if row["status"] != "ok":
-                verdict = Verdict(scenario["name"], "error", f"the replay was not scored ({row['status']})", score, seconds)
+                verdict = Verdict(
+                    scenario["name"], "error", f"the replay was not scored ({row['status']})", score, seconds
+                )
             elif rule.failed(score):
                 message = f"collision up to 5 s: {bool(score['collision_5s'])}, L_adv {score['adversarial_loss']:.4g}"
                 verdict = Verdict(scenario["name"], "failed", message, score, seconds)

@@ -101,5 +101,8 @@ def _run_regress(args: argparse.Namespace) -> int:
     if args.junit is not None:
         write_junit(args.junit, verdicts, suite.name)
     bad = [v for v in verdicts if v.outcome != "passed"]
-    print(f"regress: {len(verdicts) - len(bad)} passed, {len(bad)} failed" + (f"; JUnit: {args.junit}" if args.junit else ""))
+    print(
+        f"regress: {len(verdicts) - len(bad)} passed, {len(bad)} failed"
+        + (f"; JUnit: {args.junit}" if args.junit else "")
+    )
     return 1 if bad else 0

@@ -44,7 +44,7 @@ METRIC_ROWS: tuple[tuple[str, str, str], ...] = (
     ("plans_received", "plans received", "1"),
 )
 
-_CSS = """
+REPORT_CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2rem auto; max-width: 72rem;
        color: #1d2327; padding: 0 1rem; }
 h1 { font-size: 1.5rem; margin-bottom: .2rem; } h2 { font-size: 1.15rem; margin-top: 2rem;
@@ -74,24 +74,26 @@ document.body.setAttribute('data-ready', 'yes');
 """
 
 
-def _e(value: Any) -> str:
+def esc(value: Any) -> str:
     return html.escape(str(value), quote=True)
 
 
-def _data_uri(path: Path, mime: str) -> str | None:
+def data_uri(path: Path, mime: str) -> str | None:
     if not path.is_file():
         return None
     return f"data:{mime};base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]], classes: Sequence[Sequence[str]] | None = None) -> str:
-    head = "".join(f"<th>{_e(cell)}</th>" for cell in header)
+def html_table(
+    header: Sequence[str], rows: Sequence[Sequence[str]], classes: Sequence[Sequence[str]] | None = None
+) -> str:
+    head = "".join(f"<th>{esc(cell)}</th>" for cell in header)
     body = []
     for r, row in enumerate(rows):
         cells = []
         for c, cell in enumerate(row):
             css = classes[r][c] if classes is not None else ""
-            cells.append(f'<td class="{css}">{_e(cell)}</td>' if css else f"<td>{_e(cell)}</td>")
+            cells.append(f'<td class="{css}">{esc(cell)}</td>' if css else f"<td>{esc(cell)}</td>")
         body.append("<tr>" + "".join(cells) + "</tr>")
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
@@ -214,8 +216,8 @@ def render_report(view: AttackView, out_dir: Path) -> str:
     stack = summary.get("stack", {})
     search = summary.get("search", {})
     verdict, failed = _verdict(view)
-    gif = _data_uri(out_dir / "bev.gif", "image/gif")
-    png = _data_uri(out_dir / "bev.png", "image/png")
+    gif = data_uri(out_dir / "bev.gif", "image/gif")
+    png = data_uri(out_dir / "bev.png", "image/png")
     metric_rows, metric_classes = _metric_rows(summary.get("original"), summary.get("adversarial"))
     queries = summary.get("queries") or []
     query_rows = []
@@ -235,9 +237,9 @@ def render_report(view: AttackView, out_dir: Path) -> str:
     ]  # fmt: skip
     bag_name = view.bag.name
     mcaps = sorted(view.bag.glob("*.mcap"))
-    links = [f'<a href="{_e(bag_name)}/">{_e(bag_name)}/</a> (the scenario bag)']
+    links = [f'<a href="{esc(bag_name)}/">{esc(bag_name)}/</a> (the scenario bag)']
     links += [
-        f'<a href="{_e(bag_name)}/{_e(m.name)}">{_e(bag_name)}/{_e(m.name)}</a> (open in Foxglove)' for m in mcaps
+        f'<a href="{esc(bag_name)}/{esc(m.name)}">{esc(bag_name)}/{esc(m.name)}</a> (open in Foxglove)' for m in mcaps
     ]
     links += [f'<a href="{name}">{name}</a>' for name in ("summary.json", "queries.jsonl", "bev.png", "bev.gif")
               if (out_dir / name).is_file()]  # fmt: skip
@@ -247,15 +249,15 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         '<link rel="icon" href="data:,">',  # no favicon request
-        f"<title>advsim attack: {_e(scenario.get('scenario_id', ''))}</title>",
-        f"<style>{_CSS}</style></head><body>",
-        f"<h1>Attack on {_e(stack.get('name', 'the stack'))}: {_e(scenario.get('scenario_id', ''))}</h1>",
-        f'<p class="muted">source bag <code>{_e(scenario.get("bag", ""))}</code>, window from frame '
-        f"{_e(scenario.get('window_start_frame'))} ({_e(scenario.get('history_frames'))} history + "
-        f"{_e(scenario.get('future_frames'))} future frames); search <code>{_e(search.get('algorithm'))}</code>, "
-        f"{_e(search.get('queries'))} queries, seed {_e(search.get('seed'))}; wall time "
+        f"<title>advsim attack: {esc(scenario.get('scenario_id', ''))}</title>",
+        f"<style>{REPORT_CSS}</style></head><body>",
+        f"<h1>Attack on {esc(stack.get('name', 'the stack'))}: {esc(scenario.get('scenario_id', ''))}</h1>",
+        f'<p class="muted">source bag <code>{esc(scenario.get("bag", ""))}</code>, window from frame '
+        f"{esc(scenario.get('window_start_frame'))} ({esc(scenario.get('history_frames'))} history + "
+        f"{esc(scenario.get('future_frames'))} future frames); search <code>{esc(search.get('algorithm'))}</code>, "
+        f"{esc(search.get('queries'))} queries, seed {esc(search.get('seed'))}; wall time "
         f"{number(summary.get('wall_time_s'))} s</p>",
-        f'<p class="verdict{" fail" if failed else ""}" id="verdict">{_e(verdict)}</p>',
+        f'<p class="verdict{" fail" if failed else ""}" id="verdict">{esc(verdict)}</p>',
         "<h2>Bird's-eye view, original vs adversarial</h2>",
         f'<figure><img id="bev-animation" alt="animated bird\'s-eye view" src="{gif}"></figure>'
         if gif
@@ -265,11 +267,11 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         "the human trajectory; orange: the stack's plan of the decision frame and the SDV following it (red star: "
         "the first collision); grey: the LiDAR the stack saw (history, then the decision sweep).</p>",
         "<h2>Original vs adversarial</h2>",
-        _table(["metric", "unit", "original", "adversarial"], metric_rows, metric_classes),
+        html_table(["metric", "unit", "original", "adversarial"], metric_rows, metric_classes),
         '<p class="muted">L_adv = imitation term + collision term + comfort term (weights in params/scorer.yaml); '
         "adversarial = the recorded query (the last re-run of the best).</p>",
         "<h2>Perturbed actors</h2>",
-        _table(
+        html_table(
             [
                 "actor",
                 "class",
@@ -288,10 +290,10 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         f'<figure id="history">{history_svg(queries)}</figure>' if queries else "<p>No query finished.</p>",
         '<button data-toggle="queries" data-label="every query">show every query</button>',
         '<div id="queries" hidden>'
-        + _table(["query", "algorithm", "status", "L_adv", "collision@5s", "L2@5s [m]", "actors"], query_rows)
+        + html_table(["query", "algorithm", "status", "L_adv", "collision@5s", "L2@5s [m]", "actors"], query_rows)
         + "</div>",
         "<h2>Re-runs of the best</h2>",
-        _table(
+        html_table(
             ["query", "re-runs", "L_adv of each", "spread", "reproduced", "inputs identical", "plans identical"],
             reproductions,
         )
@@ -300,10 +302,10 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         "<h2>Still view</h2>",
         f'<figure><img id="bev-still" alt="bird\'s-eye view" src="{png}"></figure>' if png else "<p>No bev.png.</p>",
         "<h2>Files</h2><ul>" + "".join(f"<li>{link}</li>" for link in links) + "</ul>",
-        f"<p>Replay it against the stack: <code>advsim replay {_e(view.bag)} --stack ... --check</code>; as "
-        f"OpenSCENARIO: <code>advsim export openscenario {_e(view.bag)} -o scenario.xosc</code>; in Foxglove: open the "
-        ".mcap file and import <code>docs/foxglove/advsim.json</code>; in RViz2: <code>ros2 bag play</code> the bag "
-        "with <code>rviz2 -d docs/rviz/advsim.rviz</code>.</p>",
+        f"<p>Replay it against the stack: <code>advsim replay {esc(view.bag)} --stack ... --check</code>; as "
+        f"OpenSCENARIO: <code>advsim export openscenario {esc(view.bag)} -o scenario.xosc</code>; in Foxglove: open "
+        "the .mcap file and import <code>docs/foxglove/advsim.json</code>; in RViz2: <code>ros2 bag play</code> the "
+        "bag with <code>rviz2 -d docs/rviz/advsim.rviz</code>.</p>",
         f"<script>{_JS}</script>",
         "</body></html>",
     ]

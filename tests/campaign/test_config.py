@@ -1,0 +1,135 @@
+"""The campaign YAML: expanded into one attack per combination; every mistake one line naming its key, before
+anything starts; the journal keeps what finished and refuses another configuration's folder."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from advsim_ros.campaign.config import CampaignError, FailureRule, expand, load_campaign, materialize
+from advsim_ros.campaign.journal import CampaignJournal
+from advsim_ros.io.bag import write_scenario_bag
+from advsim_ros.io.synthetic import generate_synthetic_log
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    log = generate_synthetic_log(np.random.default_rng(5), scenario_id="synthetic_seed5")
+    return write_scenario_bag(log.scenario, tmp_path_factory.mktemp("logs") / "street", source="synthetic/seed=5")
+
+
+def _write(tmp_path: Path, values: dict[str, object]) -> Path:
+    path = tmp_path / "campaign.yaml"
+    path.write_text(yaml.safe_dump(values))
+    return path
+
+
+def _good(bag: Path) -> dict[str, object]:
+    return {
+        "scenarios": [{"bag": str(bag), "windows": {"starts": [0, 20]}}],
+        "stacks": ["reference", "learned", {"name": "mine", "command": "true", "remap": {"/planning/trajectory": "/my/plan"}}],
+        "algorithms": {"bo": 75, "ga": 500},
+        "actors": [1, 2],
+        "objectives": ["M5", "closest_distance"],
+        "seeds": [0],
+    }
+
+
+def test_every_combination_is_one_attack_with_a_unique_key(bag: Path, tmp_path: Path) -> None:
+    campaign = load_campaign(_write(tmp_path, _good(bag)))
+    plans = expand(campaign)
+    assert len(plans) == 2 * 3 * 2 * 2 * 2
+    assert len({plan.key for plan in plans}) == len(plans)
+    first = plans[0]
+    options = first.options(tmp_path / "a", tmp_path)
+    assert options.window_start_frame == 0
+    assert options.parameter_overrides["scorer"]["objective"]["preset"] == first.objective
+    mine = next(p for p in plans if p.stack == "mine").options(tmp_path / "b", tmp_path)
+    assert mine.stack.remappings == {"/planning/trajectory": "/my/plan"}
+
+
+def test_curated_windows_are_the_top_k_by_collision_rate_and_synthetic_logs_are_written(tmp_path: Path) -> None:
+    values = {"scenarios": [{"synthetic": {"seed_range": [0, 2]}, "windows": {"curated": 2}}],
+              "stacks": ["reference"], "algorithms": {"rs": 3}}  # fmt: skip
+    campaign = materialize(load_campaign(_write(tmp_path, values)), tmp_path / "logs")
+    plans = expand(campaign)
+    assert sorted({p.scenario for p in plans}) == ["synthetic_seed0", "synthetic_seed1"]
+    assert all(
+        (tmp_path / "logs" / name / "metadata.yaml").is_file() for name in ("synthetic_seed0", "synthetic_seed1")
+    )
+    assert len(plans) == 4  # two windows each
+
+
+def test_the_shipped_smoke_config_is_valid() -> None:
+    campaign = load_campaign(REPO / "params" / "campaign_smoke.yaml")
+    assert list(campaign.stacks) == ["reference", "learned"]
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ({"stackz": ["reference"]}, "stackz: unknown key"),
+        ({"stacks": ["autoware"]}, "stacks[0]: 'autoware': not a reference stack"),
+        ({"algorithms": {"sgd": 5}}, "algorithms.sgd: unknown algorithm"),
+        ({"algorithms": {"bo": 0}}, "algorithms.bo: the query budget must be a positive integer"),
+        ({"objectives": ["M9"]}, "objectives: 'M9' is not one of"),
+        ({"actors": [0]}, "actors: expected an integer >= 1"),
+        ({"scenarios": [{"bag": "/nowhere/log"}]}, "scenarios[0].bag: /nowhere/log is not a rosbag2 folder"),
+        ({"scenarios": [{"bag": "X", "bags": "Y"}]}, "scenarios[0]: needs exactly one of bag, bags, synthetic"),
+        ({"scenarios": [{"synthetic": {"seeds": [1]}, "window": "all"}]}, "scenarios[0].window: unknown key"),
+        ({"stacks": [{"name": "x"}]}, "stacks[0]: a stack of your own needs a name and a command"),
+        ({"stacks": [{"name": "x", "command": "no_such_stack_binary_here --go"}]}, "stacks[0]:"),
+    ],
+)
+def test_a_mistake_is_one_line_naming_its_key(bag: Path, tmp_path: Path, change: dict[str, object], named: str) -> None:
+    path = _write(tmp_path, {**_good(bag), **change})
+    with pytest.raises(CampaignError) as error:
+        expand(load_campaign(path))
+    message = str(error.value)
+    assert "\n" not in message
+    assert named in message
+
+
+def test_a_window_beyond_the_log_is_refused_by_the_command_before_anything_starts(bag: Path, tmp_path: Path) -> None:
+    path = _write(tmp_path, {**_good(bag), "scenarios": [{"bag": str(bag), "windows": {"starts": [0, 5000]}}]})
+    out = tmp_path / "out"
+    result = subprocess.run(
+        [sys.executable, "-m", "advsim_ros.cli", "campaign", str(path), "-o", str(out)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "scenarios[street].windows" in lines[0]
+    assert not out.exists()
+
+
+def test_the_journal_keeps_finished_jobs_drops_a_torn_line_and_refuses_another_config(tmp_path: Path) -> None:
+    journal = CampaignJournal.open(tmp_path, "digest-a", tmp_path / "a.yaml")
+    journal.append("attack/one", {"row": {"attack": "one"}})
+    journal.append("attack/two", {"row": {"attack": "two"}, "error": "the stack crashed"})
+    with journal.path.open("a") as stream:
+        stream.write('{"job": "attack/three", "ro')  # a kill in the middle of a line
+    again = CampaignJournal.open(tmp_path, "digest-a", tmp_path / "a.yaml")
+    assert "attack/one" in again
+    assert "attack/two" not in again  # failed: tried again on the next run
+    assert "attack/three" not in again.entries
+    assert journal.path.read_text().endswith("\n")
+    with pytest.raises(CampaignError, match="another configuration"):
+        CampaignJournal.open(tmp_path, "digest-b", tmp_path / "b.yaml")
+
+
+def test_the_failure_rule() -> None:
+    assert FailureRule().failed({"collision_5s": 1.0, "adversarial_loss": 1.0})
+    assert not FailureRule().failed({"collision_5s": 0.0, "adversarial_loss": 99.0})
+    assert FailureRule(collision=False, adversarial_loss_above=10.0).failed(
+        {"collision_5s": 0.0, "adversarial_loss": 11}
+    )
+    assert not FailureRule().failed(None)
