@@ -7,9 +7,12 @@ temporary name in the same folder and renamed, so a crash never leaves a partial
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import tempfile
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -39,3 +42,16 @@ def save_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+@contextlib.contextmanager
+def build_lock(path: Path) -> Iterator[None]:
+    """An exclusive lock beside path while held: of the attacks that need the same file at once, one builds
+    it and the others wait and read it (a campaign's attacks of one log). The kernel drops it with its process."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(f"{path.name}.lock"), "a", encoding="utf-8") as stream:
+        fcntl.flock(stream.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(stream.fileno(), fcntl.LOCK_UN)

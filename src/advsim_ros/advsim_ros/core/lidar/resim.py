@@ -36,7 +36,7 @@ import numpy as np
 
 from advsim_ros.core.lidar.assets import ActorAsset, build_assets
 from advsim_ros.core.lidar.background import BackgroundModel, build_background
-from advsim_ros.core.lidar.cache import load_arrays, save_arrays
+from advsim_ros.core.lidar.cache import build_lock, load_arrays, save_arrays
 from advsim_ros.core.lidar.changes import actor_changes
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.errors import ResimError
@@ -84,14 +84,14 @@ class ResimModel:
         config = config or ResimConfig()
         if not scenario.sweeps:
             raise ResimError(f"scenario {scenario.scenario_id} has no LiDAR sweeps to build a re-simulation model from")
-        path = None
-        if cache_dir is not None:
-            path = Path(cache_dir) / f"resim-{scenario_digest(scenario, config)}.npz"
+        if cache_dir is None:
+            return cls._build_fresh(scenario, config)
+        path = Path(cache_dir) / f"resim-{scenario_digest(scenario, config)}.npz"
+        with build_lock(path):
             arrays = load_arrays(path)
             if arrays is not None:
                 return cls(*model_parts(arrays), config)
-        model = cls._build_fresh(scenario, config)
-        if path is not None:
+            model = cls._build_fresh(scenario, config)
             save_arrays(path, model_arrays(model.beam_rows, model.background, model.assets))
         return model
 
