@@ -18,6 +18,7 @@ ALLOWED = {
     "labelling": {"core", "contract", "io", "stacks", "labelling"},
     "viz": {"core", "contract", "io", "viz"},
     "export": {"core", "contract", "io", "viz", "export"},
+    "campaign": {"core", "contract", "io", "ros", "attack", "viz", "campaign"},
 }
 
 

@@ -223,8 +223,9 @@ def test_sigint_and_sigterm_end_the_attack_with_one_line_their_exit_code_and_not
     kitti_window_bag: Path, tmp_path: Path, simple_stack: Callable[..., str], sent: int, code: int, word: str
 ) -> None:
     out = tmp_path / "stopped"
-    orchestrator = subprocess.Popen(_attack_argv(kitti_window_bag, out, simple_stack()), stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.PIPE, text=True)  # fmt: skip
+    # a budget it cannot finish before the signal (a warm machine scores several queries a second)
+    argv = _attack_argv(kitti_window_bag, out, simple_stack(), "--queries", "500")
+    orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         assert wait_for(lambda: len(_journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
         graph = _children(orchestrator.pid)
