@@ -34,7 +34,11 @@ def _write(tmp_path: Path, values: dict[str, object]) -> Path:
 def _good(bag: Path) -> dict[str, object]:
     return {
         "scenarios": [{"bag": str(bag), "windows": {"starts": [0, 20]}}],
-        "stacks": ["reference", "learned", {"name": "mine", "command": "true", "remap": {"/planning/trajectory": "/my/plan"}}],
+        "stacks": [
+            "reference",
+            "learned",
+            {"name": "mine", "command": "true", "remap": {"/planning/trajectory": "/my/plan"}},
+        ],
         "algorithms": {"bo": 75, "ga": 500},
         "actors": [1, 2],
         "objectives": ["M5", "closest_distance"],
