@@ -95,8 +95,14 @@ def _start_ray(workers: int, address: str | None) -> Any:
 
     if address:
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
-    else:  # this machine: as many CPUs as workers, so Ray itself never runs more than that
-        ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING, log_to_driver=False)
+    else:  # a Ray of its own on this machine ("local": not one found running), as many CPUs as workers
+        ray.init(
+            address="local",
+            num_cpus=workers,
+            include_dashboard=False,
+            logging_level=logging.WARNING,
+            log_to_driver=False,
+        )
     return ray
 
 
