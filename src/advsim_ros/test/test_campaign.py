@@ -184,3 +184,44 @@ def test_advsim_regress_is_red_for_the_scenarios_the_stack_still_fails_and_names
     assert [type(r) for r in cases[worse].result] == [Failure]
     assert cases[better].result == []  # passed: neither a failure nor an error
     assert "1 passed, 1 failed" in result.stdout
+
+
+@pytest.mark.slow
+def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
+    synthetic_bag: Path, tmp_path: Path
+) -> None:
+    from advsim_ros.ros.reaper import descendants
+
+    config = _config(tmp_path / "campaign.yaml", synthetic_bag)
+    out = tmp_path / "out"
+    driver = subprocess.Popen(
+        _argv(config, out, "--workers", "2"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        # Ray's own processes, its workers, the attacks' worker processes and their graphs
+        assert wait_for(lambda: len(_workers_of(out)) == 2 or driver.poll() is not None, timeout=300)
+        assert wait_for(lambda: any(b"lidar_resim" in _cmdline(p) for p in descendants(driver.pid)), timeout=300)
+        below = descendants(driver.pid)
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait(timeout=30)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert wait_for(lambda: not [pid for pid in below if _alive(pid)], timeout=30), [
+        _cmdline(pid) for pid in below if _alive(pid)
+    ]
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_bytes().rsplit(b")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != b"Z"

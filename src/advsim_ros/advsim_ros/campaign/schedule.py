@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -25,6 +26,8 @@ from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
 from advsim_ros.campaign.worker import RESULT_NAME
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.ros.launcher import die_with_parent, start_reaper
+from advsim_ros.ros.reaper import descendants, start_time
 
 ATTACK_CPUS = 1.0  # Ray resources an attack asks for: its graph is mostly one busy process at a time
 ATTACK_MEMORY = 2 * 1024**3  # [bytes]; peak of a KITTI attack with a cached background model (bench_campaign)
@@ -40,8 +43,6 @@ class Job:
 
 def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     """Body of the Ray task: the worker process for one job, tied to this one; its result or its error."""
-    from advsim_ros.ros.launcher import die_with_parent
-
     out_dir = Path(spec["out_dir"])
     result_file = out_dir / RESULT_NAME
     if result_file.is_file():  # finished before the driver could journal it
@@ -90,20 +91,34 @@ def _transfer_jobs(campaign: Campaign, entry: dict[str, Any], out_dir: Path) -> 
         yield Job(f"transfer/{row['attack']}/{target}", spec)
 
 
-def _start_ray(workers: int, address: str | None) -> Any:
+def _start_ray(workers: int, address: str | None, out_dir: Path) -> Callable[[], None]:
+    """Ray for this campaign; returns what ties a local Ray's processes to this one (call it now and then).
+
+    Ray's own processes of a local instance share this process's group, and some (its agents) outlive
+    a killed driver for minutes: a reaper (ros.reaper) is told each of them and kills them when this
+    process is gone, however it ended.
+    """
     import ray
 
     if address:
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
-    else:  # a Ray of its own on this machine ("local": not one found running), as many CPUs as workers
-        ray.init(
-            address="local",
-            num_cpus=workers,
-            include_dashboard=False,
-            logging_level=logging.WARNING,
-            log_to_driver=False,
-        )
-    return ray
+        return lambda: None
+    ray.init(address="local", num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING,
+             log_to_driver=False)  # fmt: skip
+    reaper = start_reaper(out_dir / "ray_reaper.log", os.environ)
+    assert reaper.stdin is not None
+    tell, told = reaper.stdin, set()
+
+    def tie() -> None:
+        for pid in descendants(os.getpid()):
+            started = start_time(pid)
+            if pid != reaper.pid and started is not None and (pid, started) not in told:
+                told.add((pid, started))
+                tell.write(f"pid {pid} {started}\n".encode())
+        tell.flush()
+
+    tie()
+    return tie
 
 
 def run_campaign(
@@ -134,7 +149,9 @@ def run_campaign(
         progress(dict(state))
     if not todo:
         return journal
-    ray = _start_ray(workers, address)
+    tie_local_ray = _start_ray(workers, address, out_dir)
+    import ray
+
     task = ray.remote(run_job).options(num_cpus=ATTACK_CPUS, memory=ATTACK_MEMORY, max_retries=0)
     try:
         in_flight: dict[Any, Job] = {}
@@ -142,6 +159,7 @@ def run_campaign(
             while todo and len(in_flight) < workers:
                 job = todo.pop(0)
                 in_flight[task.remote(job.spec)] = job
+            tie_local_ray()  # Ray starts worker processes as tasks come
             ready, _ = ray.wait(list(in_flight), num_returns=1)
             job = in_flight.pop(ready[0])
             outcome = ray.get(ready[0])

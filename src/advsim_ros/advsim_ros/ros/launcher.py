@@ -118,6 +118,20 @@ def die_with_parent(argv: list[str]) -> list[str]:
     return [setpriv, "--pdeathsig", "KILL", "--", *argv]
 
 
+def start_reaper(log: Path, env: Mapping[str, str], pass_fds: tuple[int, ...] = ()) -> subprocess.Popen[bytes]:
+    """A reaper (ros.reaper) in a session of its own: what it is told on its stdin dies when this process does."""
+    with open(log, "ab") as reaper_log:
+        return subprocess.Popen(
+            python_module_command("advsim_ros.ros.reaper"),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            stderr=reaper_log,
+            pass_fds=pass_fds,
+            start_new_session=True,
+            env={**env, "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"},  # it needs no ROS libraries: no re-exec
+        )
+
+
 def graph_overrides(domain_id: int) -> dict[str, str]:
     """Environment variables that put a process on one isolated graph: own domain, loopback discovery."""
     return {
@@ -157,16 +171,7 @@ class Launcher:
         self._stopped_resources: dict[str, dict[str, float]] = {}
         log_dir.mkdir(parents=True, exist_ok=True)
         # The reaper first: from now on nothing this launcher starts can outlive the orchestrator.
-        with open(log_dir / "reaper.log", "ab") as reaper_log:
-            self._reaper = subprocess.Popen(
-                python_module_command("advsim_ros.ros.reaper"),
-                stdin=subprocess.PIPE,
-                stdout=subprocess.DEVNULL,
-                stderr=reaper_log,
-                pass_fds=(lease.lock_fd,),
-                start_new_session=True,
-                env={**self._env, "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"},  # it needs no ROS libraries: no re-exec
-            )
+        self._reaper = start_reaper(log_dir / "reaper.log", self._env, (lease.lock_fd,))
         assert self._reaper.stdin is not None
         self._tell_reaper = self._reaper.stdin
 

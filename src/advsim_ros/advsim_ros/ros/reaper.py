@@ -2,10 +2,12 @@
 
 ``advsim attack`` (the orchestrator) starts this process first and tells it, on its standard
 input, the process group of every process it starts (each node and the stack run in a group of
-their own). When standard input closes — the orchestrator exited, crashed or was killed with
-SIGKILL — the reaper sends SIGKILL to every group it was told about, waits until no process of
-them is left, and exits. It holds the graph's ROS-domain lock until then, so the domain is not
-handed to another graph while anything of this one still runs.
+their own); ``advsim campaign`` tells it single processes instead (``pid PID STARTTIME``: the
+local Ray's own processes, which share the driver's group). When standard input closes — the
+orchestrator exited, crashed or was killed with SIGKILL — the reaper sends SIGKILL to every
+process and group it was told about, waits until no process of the groups is left, and exits.
+It holds the graph's ROS-domain lock until then, so the domain is not handed to another graph
+while anything of this one still runs.
 
 Run as ``python -m advsim_ros.ros.reaper``; it ignores SIGINT and SIGTERM (a Ctrl-C in the
 terminal must not take it down before the graph).
@@ -23,19 +25,21 @@ _SETTLE_POLL = 0.02  # [s]
 _GIVE_UP_AFTER = 30.0  # a process stuck in uninterruptible sleep is reported, not waited for forever [s]
 
 
+def _stat(pid: int) -> list[bytes] | None:
+    """The fields of /proc/PID/stat after the command name (state first), None when it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as stream:
+            return stream.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return None
+
+
 def group_members(groups: set[int]) -> list[int]:
     """Pids of live processes whose process group is one of ``groups`` (from /proc)."""
     members = []
     for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat", "rb") as stream:
-                fields = stream.read().rsplit(b")", 1)[1].split()
-        except OSError:
-            continue
-        state, pgrp = fields[0], int(fields[2])
-        if pgrp in groups and state != b"Z":
+        fields = _stat(int(entry)) if entry.isdigit() else None
+        if fields is not None and int(fields[2]) in groups and fields[0] != b"Z":
             members.append(int(entry))
     return members
 
@@ -53,13 +57,48 @@ def kill_groups(groups: set[int]) -> list[int]:
         time.sleep(_SETTLE_POLL)
 
 
+def start_time(pid: int) -> int | None:
+    """When the process started (clock ticks since boot): with the pid, it names one process, not a reused pid."""
+    fields = _stat(pid)
+    return None if fields is None else int(fields[19])
+
+
+def descendants(root: int) -> list[int]:
+    """Pids of the live processes below ``root`` (children, their children, ...)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        fields = _stat(int(entry)) if entry.isdigit() else None
+        if fields is not None and fields[0] != b"Z":
+            children.setdefault(int(fields[1]), []).append(int(entry))
+    found, todo = [], [root]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def kill_processes(processes: set[tuple[int, int]]) -> None:
+    """SIGKILL each (pid, start time) that is still that process."""
+    for pid, started in processes:
+        if start_time(pid) == started:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, signal.SIGKILL)
+
+
 def main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     groups: set[int] = set()
+    processes: set[tuple[int, int]] = set()
     for line in sys.stdin:
         with contextlib.suppress(ValueError):
-            groups.add(int(line))
+            words = line.split()
+            if len(words) == 3 and words[0] == "pid":
+                processes.add((int(words[1]), int(words[2])))
+            else:
+                groups.add(int(line))
+    kill_processes(processes)
     left = kill_groups(groups)
     if left:
         print(f"advsim reaper: processes {left} of the graph did not die", file=sys.stderr)
