@@ -90,6 +90,8 @@ def bootstrap_mean(values: Iterable[Any], seed: int = 0, resamples: int = RESAMP
 
 
 def _number(value: float) -> str:
+    if abs(value) < 5e-5:  # round-off of an exact zero (a plan that matches the log) reads as 0
+        return "0"
     return f"{value:.0f}" if abs(value) >= 100 else f"{value:.3g}"
 
 
