@@ -225,7 +225,11 @@ def test_sigint_and_sigterm_end_the_attack_with_one_line_their_exit_code_and_not
     out = tmp_path / "stopped"
     # a budget it cannot finish before the signal (a warm machine scores several queries a second)
     argv = _attack_argv(kitti_window_bag, out, simple_stack(), "--queries", "500")
-    orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # as from a terminal: SIGINT handled (a test run started in the background by a script inherits it ignored)
+    orchestrator = subprocess.Popen(
+        argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # before any thread starts
+    )  # fmt: skip
     try:
         assert wait_for(lambda: len(_journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
         graph = _children(orchestrator.pid)
