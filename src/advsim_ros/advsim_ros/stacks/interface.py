@@ -145,6 +145,9 @@ class AutonomyStack(Protocol):
     """A stack under test, driven one sweep at a time."""
 
     name: str
+    # whether step() gives detections and predictions: only then does its node offer those topics, since
+    # the player waits at the decision frame for every output a stack offers
+    perceives: bool
 
     def reset(self) -> None:
         """Forget every past sweep (a new drive or a jump in time)."""

@@ -62,12 +62,15 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         self.trace = Trace(name)
         # outputs are published as CDR built by the contract's builders
         self._publish_plan = self.create_publisher(Path, topics.PLAN.name, profile(topics.PLAN.offered)).publish
-        self._publish_detections = self.create_publisher(
-            ActorTrackArray, topics.DETECTIONS.name, profile(topics.DETECTIONS.offered)
-        ).publish
-        self._publish_predictions = self.create_publisher(
-            ActorTrackArray, topics.PREDICTIONS.name, profile(topics.PREDICTIONS.offered)
-        ).publish
+        # detections and predictions only from a stack that has them: the player waits for what is offered
+        self._publish_detections = self._publish_predictions = None
+        if self.stack.perceives:
+            self._publish_detections = self.create_publisher(
+                ActorTrackArray, topics.DETECTIONS.name, profile(topics.DETECTIONS.offered)
+            ).publish
+            self._publish_predictions = self.create_publisher(
+                ActorTrackArray, topics.PREDICTIONS.name, profile(topics.PREDICTIONS.offered)
+            ).publish
         self.create_subscription(TFMessage, topics.TF_STATIC.name, self._on_tf_static, profile(qos.LATCHED))
         self.create_subscription(RoadMap, topics.MAP.name, self._on_map, profile(qos.LATCHED))
         self.create_subscription(Odometry, topics.ODOM.name, self._on_odometry, profile(qos.STREAM))
@@ -168,9 +171,9 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         plan, detections, predictions = output_messages(output, stamp, self._poses.world_frame)
         self.trace("stepped")
         self._publish_plan(plan)
-        if detections is not None:
+        if detections is not None and self._publish_detections is not None:
             self._publish_detections(detections)
-        if predictions is not None:
+        if predictions is not None and self._publish_predictions is not None:
             self._publish_predictions(predictions)
         self.trace("published")
         total = output.timings_s.get("total", float("nan"))

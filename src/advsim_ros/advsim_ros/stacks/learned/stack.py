@@ -137,6 +137,7 @@ class LearnedStack:
     """Stateful learned stack; one step() per sweep. Publishes plans only (no detections)."""
 
     name = "learned"
+    perceives = False  # a plan from the raster, no objects
 
     def __init__(self, config: LearnedStackConfig | None = None, weights: Path | None = None) -> None:
         self.config = config or LearnedStackConfig()

@@ -40,6 +40,7 @@ class ModularStack:
     """Stateful modular stack; one step() per sweep."""
 
     name = "modular"
+    perceives = True
 
     def __init__(self, config: ModularStackConfig | None = None) -> None:
         self.config = config or ModularStackConfig()
