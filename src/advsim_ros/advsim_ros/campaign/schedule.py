@@ -143,7 +143,8 @@ def run_campaign(
         todo.extend(job for job in _transfer_jobs(campaign, entry, out_dir) if job.name not in journal)
     total_attacks = len(plans)
     finished = journal.of_kind("attack")
-    state = {"attacks": total_attacks, "done": len(finished), "errors": 0}
+    replays = sum(1 for job in todo if job.spec["kind"] == "transfer")
+    state = {"attacks": total_attacks, "done": len(finished), "errors": 0, "replays": replays, "replayed": 0}
     state["failures"] = sum(1 for e in finished if campaign.failure.failed(e.get("adversarial")))
     if progress is not None:
         progress(dict(state))
@@ -169,7 +170,11 @@ def run_campaign(
                 state["done" if outcome["ok"] else "errors"] += 1
                 if campaign.failure.failed(entry.get("adversarial")):
                     state["failures"] += 1
-                todo.extend(_transfer_jobs(campaign, journal.entries[job.name], out_dir))
+                transfers = list(_transfer_jobs(campaign, journal.entries[job.name], out_dir))
+                todo.extend(transfers)
+                state["replays"] += len(transfers)
+            else:
+                state["replayed"] += 1
             if progress is not None:
                 progress(dict(state))
     finally:

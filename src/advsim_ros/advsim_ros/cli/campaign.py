@@ -43,7 +43,10 @@ def _progress() -> Any:
             bars.append(tqdm(total=state["attacks"], initial=state["done"], unit="attack", desc="campaign"))
         bar = bars[0]
         bar.update(state["done"] - bar.n)
-        bar.set_postfix(failures_found=state["failures"], errors=state["errors"])
+        shown = {"failures_found": state["failures"], "errors": state["errors"]}
+        if state["replays"]:  # found failures replayed on the other stacks (transfer)
+            shown["transfer_replays"] = f"{state['replayed']}/{state['replays']}"
+        bar.set_postfix(shown)
 
     def close() -> None:
         for bar in bars:
