@@ -26,11 +26,11 @@ from advsim_ros.ros.launcher import wait_for
 TIMING_COLUMNS = ("wall_s", "cpu_s", "peak_rss_mb")
 
 
-def _config(path: Path, bag: Path, failure: dict[str, Any] | None = None) -> Path:
+def _config(path: Path, bag: Path, failure: dict[str, Any] | None = None, queries: int = 4) -> Path:
     values = {
         "scenarios": [{"bag": str(bag), "windows": {"starts": [0, 20]}}],
         "stacks": ["reference", "learned"],
-        "algorithms": {"random": 4},
+        "algorithms": {"random": queries},
         "reruns": 0,
         "transfer": False,
         "failure": failure or {"collision": True, "adversarial_loss_above": 0.0},  # every scored attack
@@ -192,7 +192,7 @@ def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
 ) -> None:
     from advsim_ros.ros.reaper import descendants
 
-    config = _config(tmp_path / "campaign.yaml", synthetic_bag)
+    config = _config(tmp_path / "campaign.yaml", synthetic_bag, queries=500)  # a budget it cannot finish first
     out = tmp_path / "out"
     driver = subprocess.Popen(
         _argv(config, out, "--workers", "2"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
@@ -200,7 +200,11 @@ def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
     try:
         # Ray's own processes, its workers, the attacks' worker processes and their graphs
         assert wait_for(lambda: len(_workers_of(out)) == 2 or driver.poll() is not None, timeout=300)
-        assert wait_for(lambda: any(b"lidar_resim" in _cmdline(p) for p in descendants(driver.pid)), timeout=300)
+        assert wait_for(
+            lambda: any(b"lidar_resim" in _cmdline(p) for p in descendants(driver.pid)) or driver.poll() is not None,
+            timeout=300,
+        )
+        assert driver.poll() is None
         below = descendants(driver.pid)
         os.kill(driver.pid, signal.SIGKILL)
         driver.wait(timeout=30)
