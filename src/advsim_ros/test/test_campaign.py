@@ -199,7 +199,8 @@ def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
     )
     try:
         # Ray's own processes, its workers, the attacks' worker processes and their graphs
-        assert wait_for(lambda: len(_workers_of(out)) == 2 or driver.poll() is not None, timeout=300)
+        # (one attack or two at once: Ray starts as many as the machine's free memory admits)
+        assert wait_for(lambda: bool(_workers_of(out)) or driver.poll() is not None, timeout=300)
         assert wait_for(
             lambda: any(b"lidar_resim" in _cmdline(p) for p in descendants(driver.pid)) or driver.poll() is not None,
             timeout=300,
