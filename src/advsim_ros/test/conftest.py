@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -28,6 +29,20 @@ def ros_graph(tmp_path: Path) -> Iterator[Launcher]:
         Launcher(graph_environment(lease.domain_id), tmp_path / "logs", lease) as launcher,
     ):
         yield launcher
+
+
+@pytest.fixture(scope="session")
+def zombie_shm_segments() -> Callable[[], int]:
+    """Counts (and removes) Fast DDS shared-memory segments whose owner is dead, by Fast DDS's own tool."""
+    from advsim_ros.ros.reaper import clean_shared_memory
+
+    def count() -> int:
+        report = clean_shared_memory()
+        found = re.search(r"(\d+) zombie segments cleaned", report)
+        assert found, report
+        return int(found.group(1))
+
+    return count
 
 
 @pytest.fixture(scope="session")

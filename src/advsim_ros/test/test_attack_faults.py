@@ -102,9 +102,10 @@ def uninterrupted(kitti_window_bag: Path, tmp_path_factory: pytest.TempPathFacto
     return stack, json.loads((base / "out" / "summary.json").read_text())
 
 
-def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path) -> None:
+def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path, zombie_shm_segments: Callable[[], int]) -> None:
     """Run the attack, kill -9 it when ``point()`` holds, check that nothing of its graph is left within 5 s."""
     player_log = out / "run" / "logs" / "graph_nodes.log"
+    zombie_shm_segments()  # what earlier tests left
     journaled_before = set(_journaled(out))
     offset = player_log.stat().st_size if player_log.exists() else 0
     orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -117,6 +118,7 @@ def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path) -> None:
         orchestrator.send_signal(signal.SIGKILL)
         orchestrator.wait()
     assert wait_for(lambda: not any(_alive(pid) for pid in graph), timeout=5.0), [p for p in graph if _alive(p)]
+    assert zombie_shm_segments() == 0  # nor its shared memory (32 MiB a process under /dev/shm)
     # a query the journal held before this run was never replayed again
     assert _started(player_log, offset).isdisjoint(journaled_before)
     ids = _journaled(out)
@@ -125,7 +127,10 @@ def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path) -> None:
 
 @pytest.mark.slow
 def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_resumes_without_recomputing(
-    kitti_window_bag: Path, tmp_path: Path, uninterrupted: tuple[str, dict[str, Any]]
+    kitti_window_bag: Path,
+    tmp_path: Path,
+    uninterrupted: tuple[str, dict[str, Any]],
+    zombie_shm_segments: Callable[[], int],
 ) -> None:
     stack, reference = uninterrupted
     out = tmp_path / "killed"
@@ -137,7 +142,7 @@ def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_r
         lambda: len(_journaled(out)) >= QUERIES + 2,  # during the re-runs of the best
     ]
     for point in kill_points:
-        _kill_9_at(argv, point, out)
+        _kill_9_at(argv, point, out, zombie_shm_segments)
     journaled_before = set(_journaled(out))
     offset = player_log.stat().st_size
     final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)

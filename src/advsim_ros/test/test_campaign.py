@@ -14,7 +14,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -188,10 +188,11 @@ def test_advsim_regress_is_red_for_the_scenarios_the_stack_still_fails_and_names
 
 @pytest.mark.slow
 def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
-    synthetic_bag: Path, tmp_path: Path
+    synthetic_bag: Path, tmp_path: Path, zombie_shm_segments: Callable[[], int]
 ) -> None:
     from advsim_ros.ros.reaper import descendants
 
+    zombie_shm_segments()  # what earlier tests left
     config = _config(tmp_path / "campaign.yaml", synthetic_bag, queries=500)  # a budget it cannot finish first
     out = tmp_path / "out"
     driver = subprocess.Popen(
@@ -215,6 +216,7 @@ def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
     assert wait_for(lambda: not [pid for pid in below if _alive(pid)], timeout=30), [
         _cmdline(pid) for pid in below if _alive(pid)
     ]
+    assert zombie_shm_segments() == 0  # the graphs' shared memory went with them
 
 
 def _cmdline(pid: int) -> bytes:

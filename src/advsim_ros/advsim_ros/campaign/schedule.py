@@ -121,6 +121,26 @@ def _start_ray(workers: int, address: str | None, out_dir: Path) -> Callable[[],
     return tie
 
 
+def _attack_memory() -> int:
+    """Memory an attack asks Ray for: ATTACK_MEMORY, or what the largest node has if that is less.
+
+    A local Ray offers the memory that was free when it started; asking for more than any node has
+    would leave every attack pending forever, so on a small machine attacks run one at a time.
+    """
+    import ray
+
+    nodes = ray.nodes()  # type: ignore[no-untyped-call]
+    largest = max((node["Resources"].get("memory", 0.0) for node in nodes if node["Alive"]), default=0.0)
+    if largest >= ATTACK_MEMORY:
+        return ATTACK_MEMORY
+    print(
+        f"advsim campaign: no Ray node has the {ATTACK_MEMORY / 1024**3:.1f} GiB an attack may use "
+        f"(largest: {largest / 1024**3:.1f} GiB free); attacks ask for that much and may be killed short of memory",
+        file=sys.stderr,
+    )
+    return max(int(largest), 1)
+
+
 def run_campaign(
     config: Path,
     out_dir: Path,
@@ -153,7 +173,7 @@ def run_campaign(
     tie_local_ray = _start_ray(workers, address, out_dir)
     import ray
 
-    task = ray.remote(run_job).options(num_cpus=ATTACK_CPUS, memory=ATTACK_MEMORY, max_retries=0)
+    task = ray.remote(run_job).options(num_cpus=ATTACK_CPUS, memory=_attack_memory(), max_retries=0)
     try:
         in_flight: dict[Any, Job] = {}
         while todo or in_flight:
@@ -163,7 +183,10 @@ def run_campaign(
             tie_local_ray()  # Ray starts worker processes as tasks come
             ready, _ = ray.wait(list(in_flight), num_returns=1)
             job = in_flight.pop(ready[0])
-            outcome = ray.get(ready[0])
+            try:
+                outcome = ray.get(ready[0])
+            except ray.exceptions.RayError as error:  # its worker died (Ray's memory monitor, a crash): one job lost
+                outcome = {"ok": False, "error": f"Ray: {type(error).__name__}: {str(error).splitlines()[0]}"}
             entry = _journal_entry(job, outcome)
             journal.append(job.name, entry)
             if job.spec["kind"] == "attack":

@@ -5,9 +5,11 @@ input, the process group of every process it starts (each node and the stack run
 their own); ``advsim campaign`` tells it single processes instead (``pid PID STARTTIME``: the
 local Ray's own processes, which share the driver's group). When standard input closes — the
 orchestrator exited, crashed or was killed with SIGKILL — the reaper sends SIGKILL to every
-process and group it was told about, waits until no process of the groups is left, and exits.
-It holds the graph's ROS-domain lock until then, so the domain is not handed to another graph
-while anything of this one still runs.
+process and group it was told about, waits until no process of the groups is left, removes the
+Fast DDS shared-memory segments their processes left behind (a process killed with SIGKILL never
+unlinks its segment, 32 MiB of RAM each under ``/dev/shm``), and exits. It holds the graph's
+ROS-domain lock until then, so the domain is not handed to another graph while anything of this
+one still runs.
 
 Run as ``python -m advsim_ros.ros.reaper``; it ignores SIGINT and SIGTERM (a Ctrl-C in the
 terminal must not take it down before the graph).
@@ -18,8 +20,10 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import subprocess
 import sys
 import time
+from pathlib import Path
 
 _SETTLE_POLL = 0.02  # [s]
 _GIVE_UP_AFTER = 30.0  # a process stuck in uninterruptible sleep is reported, not waited for forever [s]
@@ -86,6 +90,26 @@ def kill_processes(processes: set[tuple[int, int]]) -> None:
                 os.kill(pid, signal.SIGKILL)
 
 
+FASTDDS_TOOL = Path(sys.prefix) / "tools" / "fastdds" / "fastdds.py"  # installed by the ros-fastrtps wheel
+
+
+def clean_shared_memory() -> str:
+    """Remove Fast DDS shared-memory segments and ports whose owner is dead, with Fast DDS's own tool.
+
+    ``fastdds shm clean`` removes only what no live process holds a lock on, so graphs still
+    running on this machine keep theirs. Returns the tool's report (or why it did not run).
+    """
+    if not FASTDDS_TOOL.is_file():
+        return f"fastdds shm clean: not run, {FASTDDS_TOOL} is missing"
+    try:
+        done = subprocess.run(
+            [sys.executable, str(FASTDDS_TOOL), "shm", "clean"], capture_output=True, text=True, timeout=60
+        )
+    except subprocess.TimeoutExpired:
+        return "fastdds shm clean: gave up after 60 s"
+    return " ".join((done.stdout + done.stderr).split())
+
+
 def main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -102,6 +126,7 @@ def main() -> None:
     left = kill_groups(groups)
     if left:
         print(f"advsim reaper: processes {left} of the graph did not die", file=sys.stderr)
+    print(f"advsim reaper: {clean_shared_memory()}", file=sys.stderr)
 
 
 if __name__ == "__main__":
