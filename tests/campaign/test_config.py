@@ -71,6 +71,19 @@ def test_curated_windows_are_the_top_k_by_collision_rate_and_synthetic_logs_are_
     assert len(plans) == 4  # two windows each
 
 
+def test_synthetic_families_give_one_log_per_family_and_seed_written_with_that_family(tmp_path: Path) -> None:
+    from advsim_ros.io.bag import read_scenario_bag
+
+    synthetic = {"seeds": [4], "families": ["street", "cut_in"]}
+    values = {"scenarios": [{"synthetic": synthetic, "windows": {"starts": [0]}}], "stacks": ["reference"],
+              "algorithms": {"rs": 3}}  # fmt: skip
+    campaign = materialize(load_campaign(_write(tmp_path, values)), tmp_path / "logs")
+    assert [p.scenario for p in expand(campaign)] == ["synthetic_seed4", "synthetic_cut_in_seed4"]
+    written = read_scenario_bag(tmp_path / "logs" / "synthetic_cut_in_seed4")
+    assert written.scenario_id == "synthetic_cut_in_4"
+    assert "cutter" in {actor.actor_id for actor in written.actors}
+
+
 def test_the_shipped_smoke_config_is_valid() -> None:
     campaign = load_campaign(REPO / "params" / "campaign_smoke.yaml")
     assert list(campaign.stacks) == ["reference", "learned"]
@@ -88,6 +101,10 @@ def test_the_shipped_smoke_config_is_valid() -> None:
         ({"scenarios": [{"bag": "/nowhere/log"}]}, "scenarios[0].bag: /nowhere/log is not a rosbag2 folder"),
         ({"scenarios": [{"bag": "X", "bags": "Y"}]}, "scenarios[0]: needs exactly one of bag, bags, synthetic"),
         ({"scenarios": [{"synthetic": {"seeds": [1]}, "window": "all"}]}, "scenarios[0].window: unknown key"),
+        (
+            {"scenarios": [{"synthetic": {"seeds": [1], "families": ["roundabout"]}}]},
+            "scenarios[0].synthetic.families: unknown family 'roundabout' (one of street, lead_brake",
+        ),
         ({"stacks": [{"name": "x"}]}, "stacks[0]: a stack of your own needs a name and a command"),
         ({"stacks": [{"name": "x", "command": "no_such_stack_binary_here --go"}]}, "stacks[0]:"),
     ],

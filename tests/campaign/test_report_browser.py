@@ -7,9 +7,7 @@ when it runs as root).
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -19,11 +17,6 @@ from PIL import Image
 
 from advsim_ros.campaign.report import write_report
 from advsim_ros.campaign.results import attack_row, best_curve
-
-CHROMIUM_FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--window-size=1200,2400",
-)  # fmt: skip
 
 
 def _summary(rng: np.random.Generator, collided: bool, queries: int) -> dict[str, Any]:
@@ -62,34 +55,19 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_report(out, rows, transfers, curves, gallery, seed=1)["html"]
 
 
-def test_the_campaign_report_renders_in_headless_chromium_without_console_errors(report: Path, tmp_path: Path) -> None:
-    chromium, driver_path = shutil.which("chromium"), shutil.which("chromedriver")
-    if chromium is None or driver_path is None or importlib.util.find_spec("selenium") is None:
-        pytest.skip("Debian's chromium and chromium-driver are not installed (make setup installs them as root)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for flag in (*CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}"):
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(options=options, service=Service(executable_path=driver_path))
-    try:
-        driver.set_page_load_timeout(60)
-        driver.get(report.as_uri())
-        assert driver.execute_script("return document.readyState") == "complete"
-        images = driver.execute_script(
-            "return Array.from(document.images).map(function (i) { return [i.id, i.complete, i.naturalWidth]; })"
-        )
-        links = driver.execute_script(
-            "return Array.from(document.querySelectorAll('[src], [href]'))"
-            ".map(function (e) { return e.getAttribute('src') || e.getAttribute('href'); })"
-        )
-        tables = driver.execute_script("return Array.from(document.querySelectorAll('h2')).map(h => h.id)")
-        errors = [entry for entry in driver.get_log("browser") if entry["level"] in ("SEVERE", "ERROR")]
-    finally:
-        driver.quit()
+def test_the_campaign_report_renders_in_headless_chromium_without_console_errors(report: Path, chromium: Any) -> None:
+    driver = chromium
+    driver.get(report.as_uri())
+    assert driver.execute_script("return document.readyState") == "complete"
+    images = driver.execute_script(
+        "return Array.from(document.images).map(function (i) { return [i.id, i.complete, i.naturalWidth]; })"
+    )
+    links = driver.execute_script(
+        "return Array.from(document.querySelectorAll('[src], [href]'))"
+        ".map(function (e) { return e.getAttribute('src') || e.getAttribute('href'); })"
+    )
+    tables = driver.execute_script("return Array.from(document.querySelectorAll('h2')).map(h => h.id)")
+    errors = [entry for entry in driver.get_log("browser") if entry["level"] in ("SEVERE", "ERROR")]
     assert errors == []
     assert {i[0] for i in images} == {"table1-figure", "curves-figure", "gallery-0", "gallery-1", "gallery-2"}
     assert all(complete and width > 0 for _, complete, width in images)  # every picture loaded

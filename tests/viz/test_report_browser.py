@@ -9,19 +9,14 @@ from __future__ import annotations
 
 import io
 import re
-import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from advsim_ros.viz.outputs import write_viz_outputs
-
-CHROMIUM_FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--window-size=1200,2400",
-)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -38,37 +33,22 @@ def test_the_report_is_self_contained(report: Path) -> None:
     assert text.count("data:image/gif;base64,") == 1
 
 
-def test_the_report_renders_in_headless_chromium_without_console_errors(report: Path, tmp_path: Path) -> None:
-    chromium, driver_path = shutil.which("chromium"), shutil.which("chromedriver")
-    if chromium is None or driver_path is None:
-        pytest.skip("Debian's chromium and chromium-driver are not installed (make setup installs them as root)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for flag in (*CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}"):
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(options=options, service=Service(executable_path=driver_path))
-    try:
-        driver.set_page_load_timeout(60)
-        driver.get(report.as_uri())
-        assert driver.execute_script("return document.readyState") == "complete"
-        assert driver.execute_script("return document.body.getAttribute('data-ready')") == "yes"  # the script ran
-        sizes = driver.execute_script(
-            "return Array.from(document.images).map(function (i) { return [i.id, i.complete, i.naturalWidth]; })"
-        )
-        assert ["bev-animation", True, 720] in sizes
-        assert driver.execute_script("return document.querySelectorAll('#history svg').length") == 1
-        assert "collides" in driver.find_element("id", "verdict").text
-        driver.find_element("css selector", "button[data-toggle='queries']").click()
-        assert driver.execute_script("return document.getElementById('queries').hasAttribute('hidden')") is False
-        errors = [entry for entry in driver.get_log("browser") if entry["level"] in ("SEVERE", "ERROR")]
-        assert errors == []
-        shot = Image.open(io.BytesIO(driver.get_screenshot_as_png())).convert("RGB")
-    finally:
-        driver.quit()
+def test_the_report_renders_in_headless_chromium_without_console_errors(report: Path, chromium: Any) -> None:
+    driver = chromium
+    driver.get(report.as_uri())
+    assert driver.execute_script("return document.readyState") == "complete"
+    assert driver.execute_script("return document.body.getAttribute('data-ready')") == "yes"  # the script ran
+    sizes = driver.execute_script(
+        "return Array.from(document.images).map(function (i) { return [i.id, i.complete, i.naturalWidth]; })"
+    )
+    assert ["bev-animation", True, 720] in sizes
+    assert driver.execute_script("return document.querySelectorAll('#history svg').length") == 1
+    assert "collides" in driver.find_element("id", "verdict").text
+    driver.find_element("css selector", "button[data-toggle='queries']").click()
+    assert driver.execute_script("return document.getElementById('queries').hasAttribute('hidden')") is False
+    errors = [entry for entry in driver.get_log("browser") if entry["level"] in ("SEVERE", "ERROR")]
+    assert errors == []
+    shot = Image.open(io.BytesIO(driver.get_screenshot_as_png())).convert("RGB")
     pixels = np.asarray(shot).reshape(-1, 3)
     assert shot.size[0] >= 800
     assert pixels.std(axis=0).max() > 20  # not a blank page

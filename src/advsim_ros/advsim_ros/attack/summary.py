@@ -120,3 +120,26 @@ def recorded_query(records: Sequence[QueryRecord]) -> QueryRecord | None:
     searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
     ranked = ranked_queries({r.query_id: r.value for r in searched}, 1)
     return next((r for r in searched if ranked and r.query_id == ranked[0]), None)
+
+
+# rows of the original-vs-adversarial table printed after an attack: (QueryScore field, label, format)
+COMPARISON_ROWS = (
+    ("collision_3s", "collision up to 3 s", "{:.0f}"),
+    ("collision_5s", "collision up to 5 s", "{:.0f}"),
+    ("l2_human_3s", "L2 to human at 3 s [m]", "{:.2f}"),
+    ("l2_human_5s", "L2 to human at 5 s [m]", "{:.2f}"),
+    ("lateral_acceleration", "lateral acceleration [m/s^2]", "{:.2f}"),
+    ("jerk", "jerk [m/s^3]", "{:.2f}"),
+    ("adversarial_loss", "L_adv (higher: worse for the stack)", "{:.2f}"),
+)
+
+
+def comparison_table(summary: dict[str, Any]) -> str:
+    """The original and the adversarial scenario's scores side by side, as aligned text lines."""
+    columns = (summary.get("original") or {}, summary.get("adversarial") or {})
+    width = max(len(label) for _, label, _ in COMPARISON_ROWS)
+    lines = [f"{'':{width}}  {'original':>10}  {'adversarial':>11}"]
+    for key, label, form in COMPARISON_ROWS:
+        cells = [form.format(c[key]) if isinstance(c.get(key), (int, float)) else "-" for c in columns]
+        lines.append(f"{label:{width}}  {cells[0]:>10}  {cells[1]:>11}")
+    return "\n".join(lines)

@@ -7,6 +7,7 @@
         windows: all                # every candidate window (params/curation.yaml step)
       - synthetic: {seeds: [0, 1]}  # synthetic street logs, written into OUTDIR/logs
         windows: {starts: [0]}      # explicit first frames
+      - synthetic: {seed_range: [0, 50], families: [lead_brake, cut_in, crossing]}  # scene families
     stacks: [reference, learned, {name: mine, command: "my_stack --fast", remap: {/plan: /my/plan}}]
     algorithms: {bo: 75, ga: 500}   # algorithm: query budget
     actors: [1]                     # actors perturbed at once (Table 4: [1, 2, 3, 4, 5])
@@ -29,7 +30,7 @@ import json
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,7 @@ TOP_KEYS = (
 SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows")
 STACK_KEYS = ("name", "command", "remap", "remap_mode", "params")
 FAILURE_KEYS = ("collision", "adversarial_loss_above")
-SYNTHETIC_KEYS = ("seeds", "seed_range")
+SYNTHETIC_KEYS = ("seeds", "seed_range", "families")
 
 
 class CampaignError(ScenarioError):
@@ -61,10 +62,11 @@ class CampaignError(ScenarioError):
 class ScenarioSource:
     """One scenario log of the campaign and the windows to attack in it."""
 
-    name: str  # unique within the campaign: the bag folder's name (or synthetic_seedN)
+    name: str  # unique within the campaign: the bag folder's name (or synthetic_seedN, synthetic_FAMILY_seedN)
     bag: Path
     windows: Any  # "curated" | "all" | {"curated": k} | {"starts": [...]}
     synthetic_seed: int | None = None  # written into OUTDIR/logs before the attacks when not None
+    synthetic_family: str = "street"  # the synthetic log's scene family (io.synthetic_families)
 
 
 @dataclass(frozen=True)
@@ -235,6 +237,32 @@ def _windows(path: Path, key: str, value: Any) -> Any:
     raise _fail(path, key, f"expected curated, all, {{curated: K}} or {{starts: [FRAME, ...]}}, got {value!r}")
 
 
+def _synthetic_sources(path: Path, where: str, synthetic: Any, windows: Any) -> list[ScenarioSource]:
+    """``synthetic: {seeds: [...] | seed_range: [FIRST, END], families: [...]}``: one log per family and seed."""
+    from advsim_ros.io.synthetic_families import FAMILY_NAMES
+
+    if not isinstance(synthetic, dict) or len([k for k in ("seeds", "seed_range") if k in synthetic]) != 1:
+        raise _fail(path, f"{where}.synthetic", "expected {seeds: [...]} or {seed_range: [FIRST, END]}")
+    _unknown(path, f"{where}.synthetic.", synthetic, SYNTHETIC_KEYS)
+    if "seeds" in synthetic:
+        seeds = _int_list(path, f"{where}.synthetic.seeds", synthetic["seeds"], 0)
+    else:
+        first, end = _int_list(path, f"{where}.synthetic.seed_range", synthetic["seed_range"], 0)[:2]
+        seeds = tuple(range(first, end))
+    families = synthetic.get("families", ["street"])
+    if not isinstance(families, list) or not families:
+        raise _fail(path, f"{where}.synthetic.families", f"expected a list of scene families, got {families!r}")
+    for family in families:
+        if family not in FAMILY_NAMES:
+            choices = ", ".join(FAMILY_NAMES)
+            raise _fail(path, f"{where}.synthetic.families", f"unknown family {family!r} (one of {choices})")
+    return [
+        ScenarioSource(f"synthetic_seed{s}" if f == "street" else f"synthetic_{f}_seed{s}", Path(), windows, s, f)
+        for f in families
+        for s in seeds
+    ]
+
+
 def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
     if not isinstance(value, list) or not value:
         raise _fail(path, "scenarios", "expected a non-empty list of {bag | bags | synthetic, windows}")
@@ -261,16 +289,7 @@ def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
                 raise _fail(path, f"{where}.bags", f"{folder} holds no rosbag2 folder")
             sources.extend(ScenarioSource(bag.name, bag, windows) for bag in bags)
         else:
-            synthetic = entry["synthetic"]
-            if not isinstance(synthetic, dict) or len(synthetic) != 1:
-                raise _fail(path, f"{where}.synthetic", "expected {seeds: [...]} or {seed_range: [FIRST, END]}")
-            _unknown(path, f"{where}.synthetic.", synthetic, SYNTHETIC_KEYS)
-            if "seeds" in synthetic:
-                seeds = _int_list(path, f"{where}.synthetic.seeds", synthetic["seeds"], 0)
-            else:
-                first, end = _int_list(path, f"{where}.synthetic.seed_range", synthetic["seed_range"], 0)[:2]
-                seeds = tuple(range(first, end))
-            sources.extend(ScenarioSource(f"synthetic_seed{s}", Path(), windows, s) for s in seeds)
+            sources.extend(_synthetic_sources(path, where, entry["synthetic"], windows))
     names = [source.name for source in sources]
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
@@ -329,15 +348,16 @@ def load_campaign(path: Path) -> Campaign:
 
 def materialize(campaign: Campaign, logs_dir: Path) -> Campaign:
     """The campaign with its synthetic logs written under logs_dir (kept when already there)."""
-    from advsim_ros.io.synthetic import write_synthetic_bag
+    from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
 
     sources = []
     for source in campaign.scenarios:
         if source.synthetic_seed is not None:
             bag = logs_dir / source.name
             if not (bag / "metadata.yaml").is_file():
-                write_synthetic_bag(bag, seed=source.synthetic_seed)
-            source = ScenarioSource(source.name, bag.resolve(), source.windows, source.synthetic_seed)
+                config = SyntheticConfig(family=source.synthetic_family)
+                write_synthetic_bag(bag, seed=source.synthetic_seed, config=config)
+            source = replace(source, bag=bag.resolve())
         sources.append(source)
     return Campaign(**{**campaign.__dict__, "scenarios": tuple(sources)})
 

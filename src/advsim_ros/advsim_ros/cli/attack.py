@@ -15,9 +15,13 @@ from tqdm import tqdm
 
 from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
 from advsim_ros.attack.outputs import recorded_score
+from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
 from advsim_ros.core.search.registry import ALGORITHM_NAMES
-from advsim_ros.io.synthetic import write_synthetic_bag
+from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
+from advsim_ros.io.synthetic_families import FAMILY_NAMES
+
+DEMO_FAMILY = "lead_brake"  # a staged interaction in which 20 BO queries find a collision of the reference stack
 
 
 def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -49,11 +53,16 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     replay.add_argument("--tolerance", type=float, default=1e-6, help="--check: allowed |L_adv difference|")
     replay.set_defaults(run=_run_replay)
 
-    demo = subparsers.add_parser("demo", help="synthesize a street log and attack the reference stack on it")
+    demo = subparsers.add_parser(
+        "demo", help="synthesize a street log with a staged interaction and attack the reference stack on it"
+    )
     demo.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     demo.add_argument("--queries", type=int, default=20, help="search queries (default 20)")
     demo.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic log and the search")
+    demo.add_argument(
+        "--family", default=DEMO_FAMILY, choices=FAMILY_NAMES, help=f"synthetic scene family (default {DEMO_FAMILY})"
+    )
     demo.set_defaults(run=_run_demo)
 
 
@@ -184,11 +193,12 @@ def _attack_and_report(options: AttackOptions) -> int:
     finally:
         progress.close()
     summary = result.summary
-    original, adversarial = summary["original"] or {}, summary["adversarial"] or {}
-    print(f"original    L_adv {original.get('adversarial_loss')}  collision@5s {original.get('collision_5s')}")
-    print(f"adversarial L_adv {adversarial.get('adversarial_loss')}  collision@5s {adversarial.get('collision_5s')}")
+    print(comparison_table(summary))
     if summary["flaky"]:
         print(f"flaky: queries {summary['flaky']} did not reproduce when re-run (see summary.json 'reproductions')")
+    outputs = summary.get("outputs", {})
+    print(f"look at: {outputs.get('report', result.out_dir / 'report.html')} (report), "
+          f"{outputs.get('bev_animation', result.out_dir / 'bev.gif')} (animation)")  # fmt: skip
     print(f"outputs: {result.out_dir}/adversarial  {result.out_dir}/summary.json  {result.out_dir}/bev.png")
     return 0
 
@@ -231,10 +241,10 @@ def _same(value: float | None, expected: float | None, tolerance: float) -> bool
 def _run_demo(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    bag = out / f"synthetic_log_seed{args.seed}"
+    bag = out / f"synthetic_{args.family}_seed{args.seed}"
     if not (bag / "metadata.yaml").exists():
-        print(f"demo: synthesizing a street log (seed {args.seed}) into {bag}")
-        write_synthetic_bag(bag, seed=args.seed)
+        print(f"demo: synthesizing a street log ({args.family}, seed {args.seed}) into {bag}")
+        write_synthetic_bag(bag, seed=args.seed, config=SyntheticConfig(family=args.family))
     options = AttackOptions(
         bag=bag,
         out_dir=out / "attack",

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from advsim_ros.cli.common import print_result
 from advsim_ros.io.synthetic import write_synthetic_bag
+from advsim_ros.io.synthetic_families import FAMILY_NAMES
 
 
 def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -117,6 +118,9 @@ def add_synth_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     synth.add_argument("--seed", type=int, default=0, help="seed of the street, its actors and the sensor noise")
     synth.add_argument("--duration", type=float, default=None, help="log length [s] (default 8)")
     synth.add_argument(
+        "--family", default="street", choices=FAMILY_NAMES, help="the staged interaction (default street; docs/data.md)"
+    )
+    synth.add_argument(
         "--params", type=Path, default=None, help="bag topics and frames (default: params/bag.yaml values)"
     )
     synth.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
@@ -127,14 +131,15 @@ def _run_synth(args: argparse.Namespace) -> int:
     import time
 
     from advsim_ros.io.bag import load_bag_config
-    from advsim_ros.io.synthetic import SyntheticConfig
+    from advsim_ros.io.synthetic import SyntheticConfig, synthetic_name
 
     started = time.perf_counter()
-    config = SyntheticConfig() if args.duration is None else SyntheticConfig(duration=args.duration)
+    config = SyntheticConfig(family=args.family)
+    if args.duration is not None:
+        config = SyntheticConfig(duration=args.duration, family=args.family)
     bag_config = load_bag_config(args.params) if args.params is not None else None
     path = write_synthetic_bag(
         args.output, seed=args.seed, config=config, bag_config=bag_config, overwrite=args.overwrite
     )
-    return print_result(
-        f"wrote {path}: synthetic_{args.seed}, {config.num_frames} frames in {time.perf_counter() - started:.1f} s"
-    )
+    name = synthetic_name(args.family, args.seed)
+    return print_result(f"wrote {path}: {name}, {config.num_frames} frames in {time.perf_counter() - started:.1f} s")

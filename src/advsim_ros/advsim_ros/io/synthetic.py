@@ -25,7 +25,6 @@ from advsim_ros.core.lidar.boxes import yaw_pose
 from advsim_ros.core.lidar.raycast import PlacedSurface, Surface, SurfaceCaster, cuboid_surface
 from advsim_ros.core.lidar.render import render_sweep
 from advsim_ros.core.types import (
-    ActorClass,
     ActorTrack,
     EgoTrajectory,
     FloatArray,
@@ -36,17 +35,23 @@ from advsim_ros.core.types import (
     Sweep,
 )
 from advsim_ros.io.bag import BagConfig, write_scenario_bag
+from advsim_ros.io.synthetic_families import (
+    CROSSING_HALF_WIDTH,
+    LANE_WIDTH,
+    SceneLayout,
+    crossing_of,
+    scene_layout,
+)
 
 SYNTHETIC_START_NS = 1_000_000_000  # first frame at 1 s (ROS treats time 0 as unset)
 SYNTHETIC_FRAME_PERIOD_NS = 100_000_000  # 10 Hz
 SYNTHETIC_SENSOR_HEIGHT = 1.73  # LiDAR above the road [m]
 SYNTHETIC_SENSOR_FRAME = "lidar"
-LANE_WIDTH = 3.5  # [m]
 ROAD_HALF_WIDTH = 9.0  # curb to road centre: two lanes each way plus a 2 m parking strip [m]
 SIDEWALK_WIDTH = 4.0  # [m]
 CURB_HEIGHT = 0.15  # [m]
 STREET_START, STREET_END = -60.0, 180.0  # extent of the street along x [m]
-EGO_LANE_Y = -0.5 * LANE_WIDTH  # the ego drives in the inner lane of the +x direction [m]
+CROSS_STREET_HALF_LENGTH = 60.0  # the cross street of an intersection runs this far each way [m]
 
 
 @dataclass(frozen=True)
@@ -59,8 +64,10 @@ class SyntheticConfig:
     ray_drop_probability: float = 0.0  # chance that a ray hitting anything returns nothing
     azimuth_resolution_deg: float = 0.2  # horizontal angle between firings [deg]
     parked_cars_per_side: int = 5
+    family: str = "street"  # the staged interaction (io.synthetic_families.FAMILY_NAMES)
 
     def __post_init__(self) -> None:
+        crossing_of(self.family)  # an unknown family is named here
         if not 0.5 <= self.duration <= 60.0:
             raise ScenarioError(f"SyntheticConfig duration: must lie in [0.5, 60] s, got {self.duration}")
         if not 0.0 <= self.ego_speed <= 20.0:
@@ -144,24 +151,42 @@ def _quad(x0: float, x1: float, y0: float, y1: float, z: float, intensity: float
     return Surface(vertices=vertices, triangles=np.array([[0, 1, 2], [0, 2, 3]]), intensity=np.full(2, intensity))
 
 
-def _street_surface(rng: np.random.Generator) -> Surface:
-    """Road with markings, parking strips, curbs, sidewalks, buildings and poles (world frame)."""
+def _outside(x0: float, x1: float, gap: tuple[float, float] | None) -> list[tuple[float, float]]:
+    """[x0, x1] without the part inside ``gap`` (an intersection), as up to two intervals."""
+    if gap is None:
+        return [(x0, x1)]
+    return [(a, b) for a, b in ((x0, min(x1, gap[0])), (max(x0, gap[1]), x1)) if b > a]
+
+
+def _street_surface(rng: np.random.Generator, crossing_x: float | None = None) -> Surface:
+    """Road with markings, parking strips, curbs, sidewalks, buildings and poles (world frame).
+
+    With ``crossing_x`` a cross street (same width, along y) meets the street there: curbs,
+    sidewalks, markings, buildings and poles leave it open (the random draws stay the same).
+    """
     parts: list[Surface] = []
+    gap = None
+    if crossing_x is not None:
+        gap = (crossing_x - CROSSING_HALF_WIDTH - SIDEWALK_WIDTH, crossing_x + CROSSING_HALF_WIDTH + SIDEWALK_WIDTH)
     tile = 20.0  # the road as tiles keeps triangles small enough for float32 precision
     for x0 in np.arange(STREET_START, STREET_END, tile):
         parts.append(_quad(x0, x0 + tile, -ROAD_HALF_WIDTH, ROAD_HALF_WIDTH, 0.0, 0.12))
     marking_z = 0.005
     for y in (-LANE_WIDTH, LANE_WIDTH):  # dashed lane separators
         for x0 in np.arange(STREET_START, STREET_END, 9.0):
-            parts.append(_quad(x0, x0 + 3.0, y - 0.075, y + 0.075, marking_z, 0.7))
+            if gap is None or not gap[0] - 3.0 < x0 < gap[1]:
+                parts.append(_quad(x0, x0 + 3.0, y - 0.075, y + 0.075, marking_z, 0.7))
     for y in (-0.1, 0.1):  # double centre line
-        parts.append(_quad(STREET_START, STREET_END, y - 0.06, y + 0.06, marking_z, 0.7))
+        for a, b in _outside(STREET_START, STREET_END, gap):
+            parts.append(_quad(a, b, y - 0.06, y + 0.06, marking_z, 0.7))
     for y in (-2 * LANE_WIDTH, 2 * LANE_WIDTH):  # parking strip edges
-        parts.append(_quad(STREET_START, STREET_END, y - 0.075, y + 0.075, marking_z, 0.6))
+        for a, b in _outside(STREET_START, STREET_END, gap):
+            parts.append(_quad(a, b, y - 0.075, y + 0.075, marking_z, 0.6))
     for side in (-1.0, 1.0):
         inner, outer = side * ROAD_HALF_WIDTH, side * (ROAD_HALF_WIDTH + SIDEWALK_WIDTH)
         low, high = min(inner, outer), max(inner, outer)
-        parts.append(cuboid_surface([STREET_START, low, -0.3], [STREET_END, high, CURB_HEIGHT], 0.3))
+        for a, b in _outside(STREET_START, STREET_END, gap):
+            parts.append(cuboid_surface([a, low, -0.3], [b, high, CURB_HEIGHT], 0.3))
         x = STREET_START
         while x < STREET_END:  # buildings with gaps
             length = float(rng.uniform(8.0, 25.0))
@@ -169,113 +194,85 @@ def _street_surface(rng: np.random.Generator) -> Surface:
             height = float(rng.uniform(5.0, 20.0))
             near_y = side * (ROAD_HALF_WIDTH + SIDEWALK_WIDTH)
             far_y = near_y + side * depth
-            parts.append(
-                cuboid_surface(
-                    [x, min(near_y, far_y), 0.0],
-                    [min(x + length, STREET_END), max(near_y, far_y), height],
-                    float(rng.uniform(0.2, 0.5)),
+            reflectivity = float(rng.uniform(0.2, 0.5))
+            for a, b in _outside(x, min(x + length, STREET_END), gap):
+                parts.append(
+                    cuboid_surface([a, min(near_y, far_y), 0.0], [b, max(near_y, far_y), height], reflectivity)
                 )
-            )
             x += length + float(rng.uniform(2.0, 7.0))
         for x_pole in np.arange(STREET_START + float(rng.uniform(0.0, 15.0)), STREET_END, 15.0):
-            y_pole = side * (ROAD_HALF_WIDTH + 0.6)
-            parts.append(
-                cuboid_surface([x_pole - 0.1, y_pole - 0.1, CURB_HEIGHT], [x_pole + 0.1, y_pole + 0.1, 4.5], 0.5)
-            )
+            if gap is None or not gap[0] <= x_pole <= gap[1]:
+                y_pole = side * (ROAD_HALF_WIDTH + 0.6)
+                parts.append(
+                    cuboid_surface([x_pole - 0.1, y_pole - 0.1, CURB_HEIGHT], [x_pole + 0.1, y_pole + 0.1, 4.5], 0.5)
+                )
+    if crossing_x is not None:
+        parts.extend(_cross_street_surface(crossing_x))
     return Surface.concatenate(parts)
 
 
-@dataclass(frozen=True)
-class _ActorPlan:
-    actor_id: str
-    actor_class: ActorClass
-    size: tuple[float, float, float]  # l, w, h [m]
-    start: tuple[float, float]  # x, y at t = 0 [m]
-    yaw: float  # [rad]
-    speed: float  # along the heading [m/s]
-    intensity: float
-
-
-def _actor_plans(rng: np.random.Generator, config: SyntheticConfig) -> list[_ActorPlan]:
-    plans: list[_ActorPlan] = []
-
-    def car_size() -> tuple[float, float, float]:
-        return (float(rng.uniform(4.1, 4.9)), float(rng.uniform(1.72, 1.92)), float(rng.uniform(1.42, 1.65)))
-
-    parking_y = 2 * LANE_WIDTH + 1.0  # centre of the parking strip [m]
-    for side, yaw in ((-1.0, 0.0), (1.0, np.pi)):
-        x = float(rng.uniform(-10.0, 5.0))
-        for _ in range(config.parked_cars_per_side):
-            size = car_size()
-            x += 0.5 * size[0] + float(rng.uniform(2.0, 12.0))
-            plans.append(
-                _ActorPlan(
-                    f"parked_{len(plans)}",
-                    ActorClass.VEHICLE,
-                    size,
-                    (x, side * parking_y),
-                    yaw,
-                    0.0,
-                    float(rng.uniform(0.1, 0.6)),
-                )
-            )
-            x += 0.5 * size[0]
-    moving = (
-        ("lead", (float(rng.uniform(12.0, 20.0)), -1.5 * LANE_WIDTH), 0.0, float(rng.uniform(5.0, 7.0))),
-        ("oncoming", (float(rng.uniform(90.0, 120.0)), 0.5 * LANE_WIDTH), np.pi, float(rng.uniform(7.0, 10.0))),
-        ("oncoming_outer", (float(rng.uniform(35.0, 55.0)), 1.5 * LANE_WIDTH), np.pi, float(rng.uniform(4.0, 6.0))),
-    )
-    for name, start, yaw, speed in moving:
-        plans.append(_ActorPlan(name, ActorClass.VEHICLE, car_size(), start, yaw, speed, float(rng.uniform(0.1, 0.6))))
-    walker_y = ROAD_HALF_WIDTH + 0.5 * SIDEWALK_WIDTH
-    plans.append(
-        _ActorPlan(
-            "pedestrian",
-            ActorClass.PEDESTRIAN,
-            (0.7, 0.6, float(rng.uniform(1.6, 1.85))),
-            (float(rng.uniform(15.0, 35.0)), walker_y),
-            0.0,
-            float(rng.uniform(1.0, 1.6)),
-            0.35,
+def _cross_street_surface(crossing_x: float) -> list[Surface]:
+    """The cross street's road (tiles along y), centre line and sidewalks beyond the main street's."""
+    parts: list[Surface] = []
+    reach = CROSS_STREET_HALF_LENGTH
+    for y0 in np.arange(-reach, reach, 20.0):
+        parts.append(
+            _quad(crossing_x - CROSSING_HALF_WIDTH, crossing_x + CROSSING_HALF_WIDTH, y0, y0 + 20.0, 0.0, 0.12)
         )
-    )
-    return plans
+    kerb = ROAD_HALF_WIDTH + SIDEWALK_WIDTH
+    for side in (-1.0, 1.0):
+        x_in, x_out = (
+            crossing_x + side * CROSSING_HALF_WIDTH,
+            crossing_x + side * (CROSSING_HALF_WIDTH + SIDEWALK_WIDTH),
+        )
+        for y0, y1 in ((-reach, -kerb), (kerb, reach)):
+            parts.append(cuboid_surface([min(x_in, x_out), y0, -0.3], [max(x_in, x_out), y1, CURB_HEIGHT], 0.3))
+            parts.append(_quad(crossing_x - 0.06, crossing_x + 0.06, y0, y1, 0.005, 0.7))
+    return parts
+
+
+def _road_map(layout: SceneLayout) -> RoadMap:
+    """Drivable area and lane centre lines (traffic keeps right) of the street and its cross street."""
+    lanes = [
+        np.array([[STREET_START, y], [STREET_END, y]]) if y < 0 else np.array([[STREET_END, y], [STREET_START, y]])
+        for y in (-1.5 * LANE_WIDTH, -0.5 * LANE_WIDTH, 0.5 * LANE_WIDTH, 1.5 * LANE_WIDTH)
+    ]
+    areas = [_rectangle(STREET_START, STREET_END, -ROAD_HALF_WIDTH, ROAD_HALF_WIDTH)]
+    if layout.crossing_x is not None:
+        reach, x = CROSS_STREET_HALF_LENGTH, layout.crossing_x
+        for offset in (-1.5 * LANE_WIDTH, -0.5 * LANE_WIDTH, 0.5 * LANE_WIDTH, 1.5 * LANE_WIDTH):
+            ends = [[x + offset, -reach], [x + offset, reach]]  # east of the centre line northbound
+            lanes.append(np.array(ends if offset > 0 else ends[::-1]))
+        areas.append(_rectangle(x - CROSSING_HALF_WIDTH, x + CROSSING_HALF_WIDTH, -reach, reach))
+    return RoadMap(drivable_areas=tuple(areas), lane_centerlines=tuple(lanes))
+
+
+def _rectangle(x0: float, x1: float, y0: float, y1: float) -> FloatArray:
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
 
 
 def generate_synthetic_log(
     rng: np.random.Generator, config: SyntheticConfig | None = None, scenario_id: str = "synthetic"
 ) -> SyntheticLog:
-    """A synthetic street log drawn from `rng` (same generator state, same log)."""
+    """A synthetic street log of ``config.family`` drawn from `rng` (same generator state, same log)."""
     config = config or SyntheticConfig()
     sensor = synthetic_sensor_model(config)
-    static = _street_surface(rng)
-    plans = _actor_plans(rng, config)
+    static = _street_surface(rng, crossing_of(config.family))
     count = config.num_frames
     stamps = SYNTHETIC_START_NS + SYNTHETIC_FRAME_PERIOD_NS * np.arange(count, dtype=np.int64)
     times = (stamps - stamps[0]) * 1e-9
-    ego_poses = np.stack([yaw_pose([config.ego_speed * t, EGO_LANE_Y, 0.0], 0.0) for t in times])
+    layout = scene_layout(config.family, rng, times, config.ego_speed, config.parked_cars_per_side)
+    ego_poses = np.stack(
+        [yaw_pose([x, y, 0.0], float(yaw)) for (x, y), yaw in zip(layout.ego_xy, layout.ego_yaw, strict=True)]
+    )
     ego_T_sensor = yaw_pose([0.0, 0.0, SYNTHETIC_SENSOR_HEIGHT], 0.0)
     actors: list[ActorTrack] = []
     surfaces: dict[str, Surface] = {}
-    for plan in plans:
-        heading = np.array([np.cos(plan.yaw), np.sin(plan.yaw)])
-        xy = np.asarray(plan.start) + plan.speed * times[:, None] * heading
-        size = np.asarray(plan.size)
-        centers = np.column_stack([xy, np.full(count, 0.5 * size[2])])
-        actors.append(ActorTrack(plan.actor_id, plan.actor_class, size, stamps, centers, np.full(count, plan.yaw)))
-        surfaces[plan.actor_id] = template_surface(plan.actor_class, size, plan.intensity)
-    lanes = tuple(
-        np.array([[STREET_START, y], [STREET_END, y]]) if y < 0 else np.array([[STREET_END, y], [STREET_START, y]])
-        for y in (-1.5 * LANE_WIDTH, -0.5 * LANE_WIDTH, 0.5 * LANE_WIDTH, 1.5 * LANE_WIDTH)
-    )
-    road = np.array(
-        [
-            [STREET_START, -ROAD_HALF_WIDTH],
-            [STREET_END, -ROAD_HALF_WIDTH],
-            [STREET_END, ROAD_HALF_WIDTH],
-            [STREET_START, ROAD_HALF_WIDTH],
-        ]
-    )
+    for motion in layout.actors:
+        size = np.asarray(motion.size)
+        centers = np.column_stack([motion.xy, np.full(count, 0.5 * size[2])])
+        actors.append(ActorTrack(motion.actor_id, motion.actor_class, size, stamps, centers, motion.yaw))
+        surfaces[motion.actor_id] = template_surface(motion.actor_class, size, motion.intensity)
     unrendered = Scenario(
         scenario_id=scenario_id,
         frame_stamps_ns=stamps,
@@ -283,7 +280,7 @@ def generate_synthetic_log(
         actors=tuple(actors),
         ego_T_sensor=ego_T_sensor,
         sensor=sensor,
-        road_map=RoadMap(drivable_areas=(road,), lane_centerlines=lanes),
+        road_map=_road_map(layout),
     )
     log = SyntheticLog(scenario=unrendered, static_surface=static, actor_surfaces=surfaces, config=config)
     sweeps = []
@@ -315,8 +312,16 @@ def write_synthetic_bag(
     overwrite: bool = False,
 ) -> Path:
     """Generate the synthetic log of `seed` and write it as a scenario bag at `path` (atomically)."""
-    log = generate_synthetic_log(np.random.default_rng(seed), config, scenario_id=f"synthetic_{seed}")
-    return write_scenario_bag(log.scenario, path, config=bag_config, source=f"synthetic/{seed}", overwrite=overwrite)
+    config = config or SyntheticConfig()
+    name = synthetic_name(config.family, seed)
+    log = generate_synthetic_log(np.random.default_rng(seed), config, scenario_id=name)
+    source = f"synthetic/{seed}" if config.family == "street" else f"synthetic/{config.family}/{seed}"
+    return write_scenario_bag(log.scenario, path, config=bag_config, source=source, overwrite=overwrite)
+
+
+def synthetic_name(family: str, seed: int) -> str:
+    """The scenario id of a synthetic log (the street family keeps its original names)."""
+    return f"synthetic_{seed}" if family == "street" else f"synthetic_{family}_{seed}"
 
 
 __all__ = [
@@ -325,6 +330,7 @@ __all__ = [
     "SyntheticConfig",
     "SyntheticLog",
     "generate_synthetic_log",
+    "synthetic_name",
     "synthetic_sensor_model",
     "write_synthetic_bag",
 ]
