@@ -19,6 +19,7 @@ from advsim_ros.io.synthetic_families import (
     LANE_WIDTH,
     Motion,
     SceneLayout,
+    along,
     scene_layout,
 )
 
@@ -123,6 +124,15 @@ def test_left_turn_the_ego_turns_left_and_the_oncoming_car_passes_its_path_after
         turned = layout.ego_yaw[-1] - layout.ego_yaw[0]
         assert turned == pytest.approx(0.5 * np.pi, abs=0.05)
         assert layout.ego_xy[-1, 1] > 5.0  # on the cross street
+        (turn_lane,) = layout.turn_lanes  # the map has the lane the ego turns along
+        assert any(
+            lane.shape == turn_lane.shape and np.allclose(lane, turn_lane)
+            for lane in _road_map(layout).lane_centerlines
+        )
+        turning = layout.ego_xy[layout.ego_xy[:, 0] >= turn_lane[0, 0]]
+        length = np.linalg.norm(np.diff(turn_lane, axis=0), axis=1).sum()
+        dense, _ = along(turn_lane, np.arange(0.0, length, 0.25))
+        assert np.min(np.linalg.norm(turning[:, None] - dense[None], axis=2), axis=1).max() < 0.2
         oncoming = _actor(layout, "oncoming")
         reached = int(np.flatnonzero(layout.ego_xy[:, 1] >= oncoming.xy[0, 1])[0])  # the ego's path meets its lane
         ego_at = float(TIMES[reached])

@@ -21,7 +21,8 @@ from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
 
-DEMO_FAMILY = "lead_brake"  # a staged interaction in which 20 BO queries find a collision of the reference stack
+# the demo's scene: a lead car braking ahead, in which 20 BO queries find a collision of the reference stack
+DEMO_FAMILY, DEMO_SEED = "lead_brake", 1
 
 
 def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -59,7 +60,9 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     demo.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     demo.add_argument("--queries", type=int, default=20, help="search queries (default 20)")
     demo.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
-    demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic log and the search")
+    demo.add_argument(
+        "--seed", type=int, default=DEMO_SEED, help=f"seed of the synthetic log and the search (default {DEMO_SEED})"
+    )
     demo.add_argument(
         "--family", default=DEMO_FAMILY, choices=FAMILY_NAMES, help=f"synthetic scene family (default {DEMO_FAMILY})"
     )

@@ -244,6 +244,7 @@ def _road_map(layout: SceneLayout) -> RoadMap:
             ends = [[x + offset, -reach], [x + offset, reach]]  # east of the centre line northbound
             lanes.append(np.array(ends if offset > 0 else ends[::-1]))
         areas.append(_rectangle(x - CROSSING_HALF_WIDTH, x + CROSSING_HALF_WIDTH, -reach, reach))
+    lanes.extend(layout.turn_lanes)
     return RoadMap(drivable_areas=tuple(areas), lane_centerlines=tuple(lanes))
 
 

@@ -59,6 +59,7 @@ class SceneLayout:
     ego_yaw: FloatArray  # (T,) [rad]
     actors: tuple[Motion, ...]
     interacting: tuple[str, ...]  # ids of the actors the staged interaction is about
+    turn_lanes: tuple[FloatArray, ...] = ()  # lane centre lines through the crossroads the ego may take [m]
 
 
 def crossing_of(family: str) -> float | None:
@@ -356,7 +357,8 @@ def _left_turn(rng: np.random.Generator, stage: Stage) -> SceneLayout:
     )
     keep_clear = [(crossing - CROSSING_HALF_WIDTH - 4.0, crossing + CROSSING_HALF_WIDTH + 4.0)]
     parked = _parked_cars(rng, times, stage.parked_per_side, keep_clear)
-    return SceneLayout("left_turn", crossing, ego_xy, ego_yaw, (oncoming, *parked), ("oncoming",))
+    turn = path[1:]  # the left-turn lane: from where the arc begins onto the cross street
+    return SceneLayout("left_turn", crossing, ego_xy, ego_yaw, (oncoming, *parked), ("oncoming",), (turn,))
 
 
 def _occluded_pedestrian(rng: np.random.Generator, stage: Stage) -> SceneLayout:
