@@ -14,7 +14,7 @@ from advsim_ros.cli.campaign import add_campaign_commands
 from advsim_ros.cli.common import CommandError
 from advsim_ros.cli.data import add_data_commands, add_label_commands, add_synth_commands
 from advsim_ros.cli.doctor import add_doctor_commands
-from advsim_ros.cli.stacks import add_stack_commands
+from advsim_ros.cli.stacks import add_stack_commands, add_training_export_command
 from advsim_ros.export.command import add_export_commands
 from advsim_ros.ros.launcher import LaunchError
 from advsim_ros.viz.command import add_viz_commands
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_doctor_commands(subparsers)
     add_stack_commands(subparsers)
     add_viz_commands(subparsers)
-    add_export_commands(subparsers)
+    add_training_export_command(add_export_commands(subparsers))
     return parser
 
 

@@ -78,3 +78,23 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
             )
         )
     )
+
+
+def add_training_export_command(formats: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """`advsim export training SUITE -o DIR` (logic in advsim_ros.stacks.learned.dataset)."""
+    training = formats.add_parser(
+        "training", help="found scenarios as learned-stack training samples: one .npz shard each, split by window"
+    )
+    training.add_argument("suite", type=Path, help="a regression suite: OUTDIR/suite of `advsim campaign`")
+    training.add_argument("-o", "--output", type=Path, required=True, help="folder for the shards and index.json")
+    training.add_argument("--params", type=Path, default=None, help="learned stack parameters (raster, split)")
+    training.set_defaults(run=_run_training_export)
+
+
+def _run_training_export(args: argparse.Namespace) -> int:
+    from advsim_ros.stacks.learned.config import load_learned_config
+    from advsim_ros.stacks.learned.dataset import export_training
+
+    config = load_learned_config(args.params)
+    written = export_training(args.suite, args.output, config, progress=lambda text: print(text, file=sys.stderr))
+    return print_result(written.describe())

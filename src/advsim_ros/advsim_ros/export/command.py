@@ -7,8 +7,13 @@ from pathlib import Path
 from typing import Any
 
 
-def add_export_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    export = subparsers.add_parser("export", help="write a scenario bag in another tool's format (OpenSCENARIO)")
+def add_export_commands(
+    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
+) -> argparse._SubParsersAction[argparse.ArgumentParser]:
+    """`advsim export openscenario`; returns the formats so that other layers add theirs (training)."""
+    export = subparsers.add_parser(
+        "export", help="write scenarios in another tool's format (OpenSCENARIO) or as training data"
+    )
     formats = export.add_subparsers(dest="format", required=True, metavar="FORMAT")
     xosc = formats.add_parser(
         "openscenario", help="ego and actors as trajectory-following entities, ASAM OpenSCENARIO 1.3 (validated)"
@@ -17,6 +22,7 @@ def add_export_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     xosc.add_argument("-o", "--output", type=Path, required=True, help="file to write, e.g. scenario.xosc")
     xosc.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     xosc.set_defaults(run=_run_openscenario)
+    return formats
 
 
 def _run_openscenario(args: Any) -> int:

@@ -1,0 +1,123 @@
+"""Training data from found scenarios (`advsim export training`) and the split that keeps evaluation honest.
+
+A campaign's regression suite holds the adversarial scenario of every failure it found (a
+scenario bag each: the sweeps the stack saw, re-simulated, and the human's logged
+trajectory). AdvSim's robust training (Wang et al., CVPR 2021, Sec. 4.4) trains on such
+scenarios with the human trajectory as target: perturbations never touch it, so it stays a
+valid target. Each scenario becomes samples through the learned stack's own input code
+(``samples_from_scenario``: the same raster, features and motion prior the stack computes
+when it drives), written as one compressed ``.npz`` shard per scenario with an
+``index.json`` naming every shard, its split and where it came from. A user's own training
+reads the shards with numpy alone; ``load_shard`` reads one back as ``TrainingData``.
+
+The split (``window_split``) is decided by the log window a scenario comes from, never by
+the scenario itself: a failure found on a held-out window is test data even if it was found
+against a stack that trained on other windows of the same log.
+
+- synthetic street logs of the training seeds (``training.synthetic_seeds``) train; every
+  other synthetic log (other seeds, other families) is test;
+- the KITTI training sequence trains on windows inside the frames training saw (decisions up
+  to ``training.kitti_last_decision`` and their horizons), tests on windows wholly after them,
+  and windows straddling the boundary are excluded (they would leak training targets);
+- everything else (Argoverse 2, users' bags) is test.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from advsim_ros.core.atomic import atomic_file, write_json_atomically
+from advsim_ros.io.bag import read_scenario_bag
+from advsim_ros.stacks.interface import StackError
+from advsim_ros.stacks.learned.config import LearnedStackConfig
+from advsim_ros.stacks.learned.train import TrainingData, samples_from_scenario
+
+SPLITS = ("train", "test", "excluded")
+INDEX_NAME = "index.json"
+SHARD_ARRAYS = ("images", "features", "priors", "targets")
+
+
+def source_window(scenario_id: str) -> tuple[str, int]:
+    """(log id, first frame of the window) of a scenario id ``LOG@START/KIND`` (a whole log: start 0)."""
+    found = re.fullmatch(r"(.+)@(\d+)(/.*)?", scenario_id)
+    return (found.group(1), int(found.group(2))) if found else (scenario_id, 0)
+
+
+def window_split(log_id: str, first_frame: int, num_frames: int, config: LearnedStackConfig) -> str:
+    """Which split a window of a log belongs to: "train", "test" or "excluded" (see the module's docstring)."""
+    training = config.training
+    if log_id in {f"synthetic_{seed}" for seed in training.synthetic_seeds}:
+        return "train"
+    if log_id == f"kitti_tracking_{training.kitti_sequence}":
+        last_seen = training.kitti_last_decision + config.num_steps  # the last frame a training target reaches
+        if first_frame + num_frames - 1 <= last_seen:
+            return "train"
+        return "test" if first_frame > last_seen else "excluded"
+    return "test"
+
+
+@dataclass(frozen=True)
+class TrainingExport:
+    """What `advsim export training` wrote."""
+
+    out_dir: Path
+    shards: tuple[dict[str, Any], ...]
+
+    def describe(self) -> str:
+        counts = {split: sum(s["samples"] for s in self.shards if s["split"] == split) for split in SPLITS}
+        listed = ", ".join(f"{counts[split]} {split}" for split in SPLITS)
+        return f"wrote {len(self.shards)} shards to {self.out_dir}: samples {listed} (index: {INDEX_NAME})"
+
+
+def export_training(
+    suite: Path, out_dir: Path, config: LearnedStackConfig, progress: Callable[[str], None] | None = None
+) -> TrainingExport:
+    """One shard per scenario of a regression suite (OUTDIR/suite of a campaign), and the index."""
+    index_path = suite / INDEX_NAME
+    try:
+        scenarios = json.loads(index_path.read_text(encoding="utf-8"))["scenarios"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise StackError(f"{suite}: not a regression suite (expected {INDEX_NAME} of `advsim campaign`)") from None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    shards = []
+    for entry in scenarios:
+        scenario = read_scenario_bag(suite / entry["bag"])
+        log_id, first = source_window(scenario.scenario_id)
+        split = window_split(log_id, first, scenario.num_frames, config)
+        data = samples_from_scenario(scenario, config)
+        shard = f"{entry['name']}.npz"
+        with atomic_file(out_dir / shard, "wb") as stream:
+            np.savez_compressed(stream, **{name: getattr(data, name) for name in SHARD_ARRAYS},
+                                sources=np.array(data.sources))  # fmt: skip
+        shards.append({
+            "name": entry["name"], "file": shard, "split": split, "samples": data.count, "log": log_id,
+            "window_start": first, "found_on": entry.get("found_on"), "recorded": entry.get("recorded"),
+        })  # fmt: skip
+        if progress is not None:
+            progress(f"{entry['name']}: {data.count} samples ({split})")
+    write_json_atomically(out_dir / INDEX_NAME, {
+        "format": "advsim_ros training shards v1",
+        "arrays": {"images": "(N, C, rows, columns) bool BEV occupancy", "features": "(N, F) float32",
+                   "priors": "(N, T, 2) float32 motion prior [m]",
+                   "targets": "(N, T, 2) float32 human positions in the ego frame [m]",
+                   "sources": "(N,) '<scenario id>@<frame>'"},
+        "raster": config.raster.__dict__, "num_steps": config.num_steps, "step_s": config.step_s,
+        "shards": shards,
+    })  # fmt: skip
+    return TrainingExport(out_dir, tuple(shards))
+
+
+def load_shard(path: Path) -> TrainingData:
+    """A shard written by export_training, as TrainingData."""
+    with np.load(path) as arrays:
+        return TrainingData(
+            images=arrays["images"], features=arrays["features"], priors=arrays["priors"],
+            targets=arrays["targets"], sources=tuple(str(s) for s in arrays["sources"]),
+        )  # fmt: skip

@@ -1,0 +1,91 @@
+"""Found scenarios as training data: shards that read back to what the stack saw, split by source window."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from advsim_ros.core.curation import crop_frames
+from advsim_ros.io.bag import read_scenario_bag, write_scenario_bag
+from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
+from advsim_ros.stacks.interface import StackError
+from advsim_ros.stacks.learned.config import LearnedStackConfig
+from advsim_ros.stacks.learned.dataset import export_training, load_shard, source_window, window_split
+from advsim_ros.stacks.learned.train import samples_from_scenario
+
+CONFIG = LearnedStackConfig()
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A regression suite of two 6-s scenarios: one from a training log, one from a held-out family."""
+    folder = tmp_path_factory.mktemp("campaign") / "suite"
+    scenarios = []
+    for name, seed, family in (("from_training_log", 100, "street"), ("held_out", 3, "lead_brake")):
+        log_id = f"synthetic_{seed}" if family == "street" else f"synthetic_{family}_{seed}"
+        log = generate_synthetic_log(np.random.default_rng(seed), SyntheticConfig(family=family), log_id)
+        window = crop_frames(log.scenario, 10, 69)
+        window = type(window)(**{**window.__dict__, "scenario_id": f"{log_id}@10/adversarial"})
+        write_scenario_bag(window, folder / name, source="test")
+        scenarios.append({"name": name, "bag": name, "found_on": "learned", "recorded": {"collision_5s": 1.0}})
+    (folder / "index.json").write_text(json.dumps({"suite_version": 1, "scenarios": scenarios}))
+    return folder
+
+
+def test_every_shard_reads_back_to_the_samples_the_stack_computes_from_its_bag(suite: Path, tmp_path: Path) -> None:
+    written = export_training(suite, tmp_path / "data", CONFIG)
+    index = json.loads((tmp_path / "data" / "index.json").read_text())
+    assert [(s["name"], s["split"], s["log"], s["window_start"]) for s in index["shards"]] == [
+        ("from_training_log", "train", "synthetic_100", 10),
+        ("held_out", "test", "synthetic_lead_brake_3", 10),
+    ]
+    for shard in written.shards:
+        expected = samples_from_scenario(read_scenario_bag(suite / shard["name"]), CONFIG)
+        loaded = load_shard(tmp_path / "data" / shard["file"])
+        assert loaded.count == expected.count == shard["samples"] > 0
+        for name in ("images", "features", "priors", "targets"):
+            assert np.array_equal(getattr(loaded, name), getattr(expected, name)), name
+        assert loaded.sources == expected.sources
+    with np.load(tmp_path / "data" / "held_out.npz") as arrays:  # numpy alone reads a shard
+        assert arrays["targets"].shape[1:] == (CONFIG.num_steps, 2)
+
+
+def test_the_command_writes_the_shards_and_refuses_a_folder_that_is_not_a_suite(suite: Path, tmp_path: Path) -> None:
+    command = [sys.executable, "-m", "advsim_ros.cli", "export", "training"]
+    done = subprocess.run([*command, str(suite), "-o", str(tmp_path / "out")], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "wrote 2 shards" in done.stdout
+    bad = subprocess.run([*command, str(tmp_path), "-o", str(tmp_path / "x")], capture_output=True, text=True)
+    assert bad.returncode != 0
+    assert bad.stderr.strip().count("\n") == 0
+    assert "not a regression suite" in bad.stderr
+    with pytest.raises(StackError, match="not a regression suite"):
+        export_training(tmp_path, tmp_path / "y", CONFIG)
+
+
+def test_the_split_never_lets_a_test_window_share_a_frame_with_training() -> None:
+    training = CONFIG.training
+    kitti = f"kitti_tracking_{training.kitti_sequence}"
+    trained_frames = {  # every frame a KITTI training sample reads: its history and its target horizon
+        frame
+        for decision in range(CONFIG.raster.history - 1, training.kitti_last_decision + 1)
+        for frame in range(decision - CONFIG.raster.history + 1, decision + CONFIG.num_steps + 1)
+    }
+    splits = {start: window_split(kitti, start, 60, CONFIG) for start in range(0, 140)}  # a longer log than 0000
+    assert set(splits.values()) == {"train", "test", "excluded"}
+    for start, split in splits.items():
+        frames = set(range(start, start + 60))
+        if split == "test":
+            assert frames.isdisjoint(trained_frames), start
+        if split == "train":
+            assert frames <= trained_frames, start
+    assert window_split("synthetic_100", 0, 60, CONFIG) == "train"
+    assert window_split("synthetic_lead_brake_100", 0, 60, CONFIG) == "test"  # another family: never trained
+    assert window_split("av2_7fab", 0, 60, CONFIG) == "test"
+    assert source_window("kitti_tracking_0000@20/adversarial") == ("kitti_tracking_0000", 20)
+    assert source_window("synthetic_3") == ("synthetic_3", 0)
