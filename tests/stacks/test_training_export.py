@@ -89,3 +89,36 @@ def test_the_split_never_lets_a_test_window_share_a_frame_with_training() -> Non
     assert window_split("av2_7fab", 0, 60, CONFIG) == "test"
     assert source_window("kitti_tracking_0000@20/adversarial") == ("kitti_tracking_0000", 20)
     assert source_window("synthetic_3") == ("synthetic_3", 0)
+
+
+def test_robust_training_fine_tunes_on_logs_plus_found_scenarios_reproducibly(suite: Path, tmp_path: Path) -> None:
+    import dataclasses
+
+    import torch
+
+    from advsim_ros.stacks.learned.dataset import training_shards
+    from advsim_ros.stacks.learned.stack import load_model
+    from advsim_ros.stacks.learned.train import train_il
+
+    export_training(suite, tmp_path / "data", CONFIG)
+    adversarial = training_shards(tmp_path / "data")
+    assert [part.sources[0].split("@")[0] for part in adversarial] == ["synthetic_100"]  # the held-out one stays out
+    tiny = {"synthetic_seeds": (5,), "synthetic_duration": 6.2, "finetune_epochs": 1, "adversarial_repeat": 2}
+    small = dataclasses.replace(CONFIG, training=dataclasses.replace(CONFIG.training, **tiny))
+    first = train_il(small, None, tmp_path / "robust_a.pt", scheme="robust", adversarial=adversarial)
+    second = train_il(small, None, tmp_path / "robust_b.pt", scheme="robust", adversarial=adversarial)
+    assert adversarial[0].count == 1  # a found scenario is one decision: 1 s of history, 5 s of future
+    assert first.sources == {"synthetic_5": 3, "synthetic_100@10/adversarial": 2}  # the log's samples + 2 repeats
+    assert second.samples == first.samples
+    robust, metadata = load_model(small, tmp_path / "robust_a.pt")
+    again, _ = load_model(small, tmp_path / "robust_b.pt")
+    pairs = zip(robust.state_dict().values(), again.state_dict().values(), strict=True)
+    assert all(torch.equal(a, b) for a, b in pairs)  # the same weights, bit for bit
+    assert metadata["scheme"] == "robust"
+    assert metadata["adversarial_samples"] == adversarial[0].count
+    standard, _ = load_model(small)  # the packaged weights it started from
+    pairs = zip(robust.state_dict().values(), standard.state_dict().values(), strict=True)
+    changed = [not torch.equal(a, b) for a, b in pairs]
+    assert any(changed)  # fine-tuned, not retrained from scratch nor left as it was
+    with pytest.raises(StackError, match="robust training needs adversarial samples"):
+        train_il(small, None, tmp_path / "none.pt", scheme="robust")

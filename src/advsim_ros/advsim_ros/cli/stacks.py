@@ -63,7 +63,16 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     train.add_argument("--kitti", type=Path, default=kitti_default, help="KITTI tracking folder (default: shared data)")
     train.add_argument("--no-kitti", action="store_true", help="synthetic logs only")
     train.add_argument("--params", type=Path, default=None, help="parameters (default params/stack_learned.yaml)")
-    train.add_argument("--epochs", type=int, default=None, help="override training.epochs")
+    train.add_argument(
+        "--epochs", type=int, default=None, help="override training.epochs (robust: training.finetune_epochs)"
+    )
+    train.add_argument(
+        "--scheme", default="standard", choices=("standard", "robust"),
+        help="standard: from scratch on the logs; robust: fine-tune on the logs plus found scenarios (--adversarial)",
+    )  # fmt: skip
+    train.add_argument(
+        "--adversarial", type=Path, default=None, help="an `advsim export training` folder (its train split is used)"
+    )
     train.set_defaults(
         run=lambda args: print_result(
             json.dumps(
@@ -72,7 +81,9 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
                     None if args.no_kitti else args.kitti,
                     args.params,
                     args.epochs,
-                    log=lambda text: print(text, file=sys.stderr),
+                    lambda text: print(text, file=sys.stderr),
+                    args.scheme,
+                    args.adversarial,
                 ),
                 indent=2,
             )

@@ -213,16 +213,27 @@ def sanity(
 
 
 def train_il_command(
-    out: Path, kitti_root: Path | None, params: Path | None, epochs: int | None, log: Callable[[str], None]
+    out: Path,
+    kitti_root: Path | None,
+    params: Path | None,
+    epochs: int | None,
+    log: Callable[[str], None],
+    scheme: str = "standard",
+    adversarial_dir: Path | None = None,
 ) -> dict[str, Any]:
     """Train the learned planner and write its weights; returns the training report as a dict."""
     from advsim_ros.stacks.learned.config import load_learned_config
+    from advsim_ros.stacks.learned.dataset import training_shards
     from advsim_ros.stacks.learned.train import train_il
 
     config = load_learned_config(params)
     if epochs is not None:
-        config = replace(config, training=replace(config.training, epochs=epochs))
-    report = train_il(config, kitti_root, out, log)
+        field = "finetune_epochs" if scheme == "robust" else "epochs"
+        config = replace(config, training=replace(config.training, **{field: epochs}))
+    adversarial = training_shards(adversarial_dir) if adversarial_dir is not None else []
+    if adversarial_dir is not None:
+        log(f"{adversarial_dir}: {sum(part.count for part in adversarial)} adversarial samples of the train split")
+    report = train_il(config, kitti_root, out, log, scheme, adversarial)
     return asdict(report)
 
 

@@ -97,10 +97,17 @@ class TrainingConfig:
     synthetic_duration: float = 10.0  # length of each synthetic training log [s]
     mirror: bool = True  # add every sample mirrored left-right
     threads: int = 2  # torch intra-op threads (fixed, so that sums are reduced in the same order)
+    finetune_epochs: int = 10  # robust training: passes when fine-tuning on logs + adversarial samples
+    finetune_learning_rate: float = 3.0e-4  # robust training: Adam step size when fine-tuning
+    adversarial_repeat: int = 5  # robust training: each adversarial sample counts this many times per pass
 
     def __post_init__(self) -> None:
-        if self.epochs < 1 or self.batch_size < 1 or self.threads < 1:
-            raise ScenarioError("training epochs, batch_size, threads: must be >= 1")
+        if min(self.epochs, self.batch_size, self.threads, self.finetune_epochs, self.adversarial_repeat) < 1:
+            raise ScenarioError(
+                "training epochs, batch_size, threads, finetune_epochs, adversarial_repeat: must be >= 1"
+            )
+        if not self.finetune_learning_rate > 0:
+            raise ScenarioError("training finetune_learning_rate must be positive")
         if not (self.learning_rate > 0 and self.weight_decay >= 0):
             raise ScenarioError("training learning_rate must be positive and weight_decay >= 0")
         if not 0.5 <= self.synthetic_duration <= 60.0:

@@ -121,3 +121,14 @@ def load_shard(path: Path) -> TrainingData:
             images=arrays["images"], features=arrays["features"], priors=arrays["priors"],
             targets=arrays["targets"], sources=tuple(str(s) for s in arrays["sources"]),
         )  # fmt: skip
+
+
+def training_shards(folder: Path, split: str = "train") -> list[TrainingData]:
+    """The shards of an export that belong to ``split`` (robust training takes "train" only)."""
+    try:
+        shards = json.loads((folder / INDEX_NAME).read_text(encoding="utf-8"))["shards"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise StackError(
+            f"{folder}: not a training export (expected {INDEX_NAME} of `advsim export training`)"
+        ) from None
+    return [load_shard(folder / shard["file"]) for shard in shards if shard["split"] == split]

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -139,9 +139,12 @@ def _mirror(
 
 
 def train_planner(
-    data: TrainingData, config: LearnedStackConfig, log: Callable[[str], None] | None = None
+    data: TrainingData,
+    config: LearnedStackConfig,
+    log: Callable[[str], None] | None = None,
+    initial: BevPlanner | None = None,
 ) -> tuple[BevPlanner, list[float]]:
-    """Fit the planner to the samples (deterministic for a given config and data)."""
+    """Fit the planner to the samples, from ``initial``'s weights when given (deterministic for given inputs)."""
     training = config.training
     if config.training.mirror and not np.isclose(config.raster.y_range[0], -config.raster.y_range[1]):
         raise StackError("training mirror: needs a raster y_range symmetric about 0")
@@ -151,6 +154,8 @@ def train_planner(
     torch.set_num_threads(training.threads)
     try:
         model = BevPlanner(config.raster, config.model, config.num_steps)
+        if initial is not None:  # fine-tuning: start from the given weights, not from a fresh draw
+            model.load_state_dict(initial.state_dict())
         optimiser = torch.optim.Adam(model.parameters(), lr=training.learning_rate, weight_decay=training.weight_decay)
         loss_function = nn.SmoothL1Loss()
         rng = np.random.default_rng(training.seed)
@@ -185,10 +190,30 @@ def train_planner(
         torch.use_deterministic_algorithms(False)
 
 
+SCHEMES = ("standard", "robust")
+
+
 def train_il(
-    config: LearnedStackConfig, kitti_root: Path | None, out: Path, log: Callable[[str], None] | None = None
+    config: LearnedStackConfig,
+    kitti_root: Path | None,
+    out: Path,
+    log: Callable[[str], None] | None = None,
+    scheme: str = "standard",
+    adversarial: Sequence[TrainingData] = (),
 ) -> TrainingReport:
-    """Build the data, train, write the weights to `out` atomically; the report says what happened."""
+    """Build the data, train, write the weights to `out` atomically; the report says what happened.
+
+    ``standard`` trains from scratch on the logs. ``robust`` (AdvSim's robust training) fine-tunes
+    the configured weights (``planner.weights``, default the packaged ones) for
+    ``training.finetune_epochs`` at ``training.finetune_learning_rate`` on the same logs mixed with
+    the adversarial samples (``adversarial``: training-split shards of `advsim export training`),
+    each adversarial sample repeated ``training.adversarial_repeat`` times so that a few found
+    scenarios weigh against hundreds of logged frames.
+    """
+    if scheme not in SCHEMES:
+        raise StackError(f"training scheme: expected one of {', '.join(SCHEMES)}, got {scheme!r}")
+    if scheme == "robust" and not adversarial:
+        raise StackError("robust training needs adversarial samples (`advsim export training`, split 'train')")
     start = time.perf_counter()
     parts = []
     for scenario, keep in training_scenarios(config, kitti_root):
@@ -196,8 +221,17 @@ def train_il(
         if log is not None:
             log(f"{scenario.scenario_id}: {part.count} samples")
         parts.append(part)
+    initial = None
+    if scheme == "robust":
+        from advsim_ros.stacks.learned.stack import load_model
+
+        initial, _ = load_model(config)
+        parts.extend(list(adversarial) * config.training.adversarial_repeat)
+        training = config.training
+        config = replace(config, training=replace(training, epochs=training.finetune_epochs,
+                                                  learning_rate=training.finetune_learning_rate))  # fmt: skip
     data = TrainingData.concatenate(parts)
-    model, losses = train_planner(data, config, log)
+    model, losses = train_planner(data, config, log, initial)
     sources: dict[str, int] = {}
     for source in data.sources:
         scenario_id = source.rsplit("@", 1)[0]
@@ -209,6 +243,8 @@ def train_il(
         "seed": config.training.seed,
         "final_loss": losses[-1],
         "kitti_last_decision": config.training.kitti_last_decision if kitti_root is not None else None,
+        "scheme": scheme,
+        "adversarial_samples": sum(part.count for part in adversarial),
     }
     save_weights(model, config, out, metadata)
     return TrainingReport(
