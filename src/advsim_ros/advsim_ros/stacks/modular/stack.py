@@ -115,7 +115,11 @@ class ModularStack:
             config.planner.static_min_points,
             frame.world_T_ego,
         )
-        static = clear_boxes(static, boxes[moving, 0], config.planner.moving_clearance)
+        # The grid is this sweep's: clear each moving object where this sweep saw it, not at the first plan
+        # step (0.1 s on: at 8 m/s the returns of its rear would stay behind as an obstacle in the ego's path).
+        current = np.column_stack([tracks.state[:, :2], tracks.yaw, tracks.size[:, :2]])
+        current = np.where((tracks.misses == 0)[:, None], tracks.detected_box, current)
+        static = clear_boxes(static, current[moving], config.planner.moving_clearance)
         # Returns on or right beside the ego body (mirrors, sensor rig) are not obstacles to plan around.
         forward = config.planner.ego_forward_offset * np.array([np.cos(ego_yaw), np.sin(ego_yaw)])
         ego_box = np.array([[*(ego.xy + forward), ego_yaw, ego.length, ego.width]])
