@@ -89,8 +89,17 @@ def test_advsim_doctor_says_what_the_stack_uses_and_the_remaps_that_connect_it(
     assert "verdict: NOT ready" in table
 
     connected = doctor("remapped", *REMAPS)
-    assert connected.returncode == 0, connected.stdout + connected.stderr
+    assert connected.returncode == 0, connected.stdout + connected.stderr + _log_tails(tmp_path / "remapped")
     assert re.search(r"^/planning/trajectory\s+out\s+/my_planner/path\s+nav_msgs/msg/Path\s+reliable, volatile\s+ok$",
                      connected.stdout, re.MULTILINE)  # fmt: skip
     assert "plans: 10 of 10 sweeps answered" in connected.stdout
     assert "Found remap rule" not in connected.stderr  # the advsim command line is not rcl's
+
+
+def _log_tails(out: Path, lines: int = 15) -> str:
+    """The last lines of every graph log under out (what a failure needs to be understood)."""
+    tails = []
+    for log in sorted(out.rglob("*.log")):
+        text = log.read_text(encoding="utf-8", errors="replace").splitlines()[-lines:]
+        tails.append(f"\n--- {log.relative_to(out)}\n" + "\n".join(text))
+    return "".join(tails)
