@@ -27,10 +27,9 @@ import numpy as np
 import numpy.typing as npt
 
 from advsim_ros.core.geometry import box_distance, boxes_overlap, wrap_angle
-from advsim_ros.core.metrics import ActorFutures, trajectory_kinematics
+from advsim_ros.core.metrics import NS_PER_S, ActorFutures, trajectory_kinematics
 from advsim_ros.core.types import EgoGeometry, FloatArray, Plan, ScenarioError
 
-NS_PER_S = 1_000_000_000
 STOP_SPEED = 0.3  # below this, a plan that stands is met by braking to a halt [m/s]
 IntArray = npt.NDArray[np.int64]
 
@@ -85,10 +84,10 @@ class ExecutedTrajectory:
     def yaws(self) -> FloatArray:
         return self.states[:, 2]
 
-    def as_plan(self, every: int = 1) -> Plan:
-        """The executed trajectory in the plan type (every ``every``-th step), for the plan metrics."""
-        picked = slice(None, None, every)
-        return Plan(stamps_ns=self.stamps_ns[picked], xy=self.xy[picked], yaws=np.unwrap(self.yaws[picked]))
+
+def yaw_rate_of(speed: float, steer: float, wheelbase: float) -> float:
+    """Heading rate of the kinematic bicycle at a speed and road-wheel angle [rad/s]."""
+    return speed * float(np.tan(steer)) / wheelbase
 
 
 def plan_speeds(plan: Plan) -> tuple[FloatArray, FloatArray]:
@@ -137,7 +136,7 @@ def control_step(state: VehicleState, plan: Plan, now_ns: int, config: Controlle
 
     speed = max(state.speed + accel * dt, 0.0)  # standing, the brake holds: no reversing
     mean_speed = 0.5 * (state.speed + speed)
-    yaw_rate = mean_speed * np.tan(steer) / config.wheelbase
+    yaw_rate = yaw_rate_of(mean_speed, steer, config.wheelbase)
     heading = state.yaw + 0.5 * yaw_rate * dt  # the step's midpoint heading
     return VehicleState(
         x=state.x + mean_speed * dt * float(np.cos(heading)),

@@ -38,6 +38,8 @@ from advsim_ros.io.bag import BagConfig, write_scenario_bag
 from advsim_ros.io.synthetic_families import (
     CROSSING_HALF_WIDTH,
     LANE_WIDTH,
+    ROAD_HALF_WIDTH,
+    SIDEWALK_WIDTH,
     SceneLayout,
     crossing_of,
     scene_layout,
@@ -47,8 +49,6 @@ SYNTHETIC_START_NS = 1_000_000_000  # first frame at 1 s (ROS treats time 0 as u
 SYNTHETIC_FRAME_PERIOD_NS = 100_000_000  # 10 Hz
 SYNTHETIC_SENSOR_HEIGHT = 1.73  # LiDAR above the road [m]
 SYNTHETIC_SENSOR_FRAME = "lidar"
-ROAD_HALF_WIDTH = 9.0  # curb to road centre: two lanes each way plus a 2 m parking strip [m]
-SIDEWALK_WIDTH = 4.0  # [m]
 CURB_HEIGHT = 0.15  # [m]
 STREET_START, STREET_END = -60.0, 180.0  # extent of the street along x [m]
 CROSS_STREET_HALF_LENGTH = 60.0  # the cross street of an intersection runs this far each way [m]

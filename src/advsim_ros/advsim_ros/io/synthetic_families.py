@@ -29,6 +29,8 @@ from advsim_ros.core.types import ActorClass, FloatArray, ScenarioError
 
 LANE_WIDTH = 3.5  # [m]
 EGO_LANE_Y = -0.5 * LANE_WIDTH  # the ego's lane: the inner lane of the +x direction [m]
+ROAD_HALF_WIDTH = 9.0  # curb to road centre: two lanes each way plus a 2 m parking strip [m]
+SIDEWALK_WIDTH = 4.0  # [m]
 PARKING_Y = 2 * LANE_WIDTH + 1.0  # |y| of the parking strips' centres [m]
 CROSSING_X = 32.0  # centre line of the cross street of the intersection families [m]
 CROSSING_HALF_WIDTH = 9.0  # curb to centre line of the cross street [m]
@@ -208,7 +210,7 @@ def _street(rng: np.random.Generator, stage: Stage) -> SceneLayout:
         size = _car_size(rng)
         actors.append(_constant(name, ActorClass.VEHICLE, size, _reflectivity(rng), start, yaw, actor_speed, times))
     walker = (0.7, 0.6, float(rng.uniform(1.6, 1.85)))
-    start = (float(rng.uniform(15.0, 35.0)), 9.0 + 2.0)  # the middle of the left sidewalk
+    start = (float(rng.uniform(15.0, 35.0)), ROAD_HALF_WIDTH + 0.5 * SIDEWALK_WIDTH)  # the left sidewalk's middle
     actors.append(
         _constant("pedestrian", ActorClass.PEDESTRIAN, walker, 0.35, start, 0.0, float(rng.uniform(1.0, 1.6)), times)
     )

@@ -23,9 +23,10 @@ from advsim_ros.core.closed_loop import (
     VehicleState,
     drive_closed_loop,
     executed_metrics,
+    yaw_rate_of,
 )
 from advsim_ros.core.lidar.boxes import yaw_pose
-from advsim_ros.core.metrics import MetricsConfig, actor_futures_at, collision_steps, plan_from_decision
+from advsim_ros.core.metrics import NS_PER_S, MetricsConfig, actor_futures_at, collision_steps, plan_from_decision
 from advsim_ros.core.types import Plan
 from advsim_ros.io.synthetic import SyntheticLog
 from advsim_ros.stacks.interface import AutonomyStack, EgoMotion, StackError, StackFrame, points_xyz
@@ -53,8 +54,9 @@ def closed_loop_episode(
 ) -> ClosedLoopEpisode:
     """Run the stack over the history, then close the loop for ``horizon_s`` from the decision frame."""
     scenario = log.scenario
+    period_ns = int(scenario.frame_stamps_ns[1] - scenario.frame_stamps_ns[0])  # a sweep, and a replan, per frame
     first = decision_frame - history_frames + 1
-    last_frame = decision_frame + round(horizon_s * 10)
+    last_frame = decision_frame + round(horizon_s * NS_PER_S / period_ns)
     if first < 0 or last_frame >= scenario.num_frames:
         raise StackError(
             f"closed loop: frames {first}..{last_frame} are not all in {scenario.scenario_id} "
@@ -79,7 +81,7 @@ def closed_loop_episode(
         world_T_ego = yaw_pose([state.x, state.y, 0.0], state.yaw)
         sensor_pose = world_T_ego @ scenario.ego_T_sensor
         points = log.render(sensor_pose, log.actor_poses_at(now_ns), rng)
-        yaw_rate = state.speed * float(np.tan(state.steer)) / controller.wheelbase
+        yaw_rate = yaw_rate_of(state.speed, state.steer, controller.wheelbase)
         motion = EgoMotion(speed=state.speed, yaw_rate=yaw_rate, acceleration=state.accel)
         return stack.step(StackFrame(now_ns, points_xyz(points), world_T_ego, scenario.ego_T_sensor, motion)).plan
 
@@ -89,12 +91,12 @@ def closed_loop_episode(
         float(frame.world_T_ego[0, 3]), float(frame.world_T_ego[1, 3]), yaw, frame.motion.speed, 0.0,
         float(np.clip(steer, -controller.max_steer, controller.max_steer)),
     )  # fmt: skip
-    executed = drive_closed_loop(start, planner, decision_ns, horizon_s, 0.1, controller)
+    executed = drive_closed_loop(start, planner, decision_ns, horizon_s, period_ns / NS_PER_S, controller)
     actors = scenario.actors
     metrics = executed_metrics(executed, actor_futures_at(actors, executed.stamps_ns), scenario.ego_geometry)
     scored = plan_from_decision(plan, frame.world_T_ego, decision_ns)
-    within = scored.stamps_ns <= decision_ns + round(horizon_s * 1e9)
+    within = scored.stamps_ns <= decision_ns + round(horizon_s * NS_PER_S)
     scored = Plan(scored.stamps_ns[within], scored.xy[within], scored.yaws[within])
     hits = collision_steps(scored, actor_futures_at(actors, scored.stamps_ns), scenario.ego_geometry, MetricsConfig())
-    open_time = float((scored.stamps_ns[np.argmax(hits)] - decision_ns) / 1e9) if hits.any() else np.inf
+    open_time = float((scored.stamps_ns[np.argmax(hits)] - decision_ns) / NS_PER_S) if hits.any() else np.inf
     return ClosedLoopEpisode(scored, open_time, executed, metrics)
