@@ -13,12 +13,13 @@ ALLOWED = {
     "io": {"core", "contract", "io"},
     "ros": {"core", "contract", "ros"},
     "stacks": {"core", "contract", "io", "ros", "stacks"},
-    "nodes": {"core", "contract", "io", "ros", "nodes"},
-    "attack": {"core", "contract", "io", "ros", "nodes", "viz", "attack"},
+    "adapters": {"core", "contract", "adapters"},
+    "nodes": {"core", "contract", "io", "ros", "adapters", "nodes"},
+    "attack": {"core", "contract", "io", "ros", "nodes", "viz", "adapters", "attack"},
     "labelling": {"core", "contract", "io", "stacks", "labelling"},
     "viz": {"core", "contract", "io", "viz"},
     "export": {"core", "contract", "io", "viz", "export"},
-    "campaign": {"core", "contract", "io", "ros", "attack", "viz", "campaign"},
+    "campaign": {"core", "contract", "io", "ros", "attack", "viz", "adapters", "campaign"},
 }
 
 

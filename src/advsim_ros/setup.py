@@ -13,7 +13,7 @@ NODES: dict[str, str] = {
     "lidar_resim": "advsim_ros.nodes.lidar_resim:main",
     "scorer": "advsim_ros.nodes.scorer:main",
     "search": "advsim_ros.nodes.search:main",
-    "stack_relay": "advsim_ros.nodes.stack_relay:main",
+    "stack_adapter": "advsim_ros.nodes.stack_adapter:main",
     "modular_stack": "advsim_ros.stacks.modular.node:main",
     "learned_stack": "advsim_ros.stacks.learned.node:main",
 }

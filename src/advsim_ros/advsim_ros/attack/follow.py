@@ -37,7 +37,7 @@ def follow(
     checked: Preflight,
     launcher: Launcher,
     monitor: AttackMonitor,
-    stack: NodeSpec,
+    stack: Sequence[NodeSpec],
     graph: Sequence[NodeSpec],
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
@@ -55,6 +55,7 @@ def follow(
 
     crashes: list[dict[str, Any]] = []
     graph_names = {spec.name for spec in graph}
+    stack_processes = {spec.name: spec for spec in stack}
     replay_next = len(journal.records) if options.replay_only else -1
     connected_once = graph_written = False
     started = last_change = time.monotonic()
@@ -79,7 +80,7 @@ def follow(
             if name in graph_names:
                 log = launcher.log_path(name)
                 raise AttackError(f"node {name} exited with code {code}; its log ({log}):\n{_log_tail(log)}")
-            elif name == stack.name:
+            elif name in stack_processes:
                 log = launcher.log_path(name)
                 if not connected_once:
                     raise AttackError(
@@ -89,7 +90,7 @@ def follow(
                 launcher.stop(name)
                 if not options.stack.restart:
                     raise AttackError(f"the stack exited with code {code} during query {monitor.progress.query}")
-                launcher.start(stack)
+                launcher.start(stack_processes[name])
         if options.replay_only and len(journal.records) >= options.replay_runs:
             break
         if monitor.search_finished and not options.replay_only and monitor.idle():
@@ -103,7 +104,7 @@ def follow(
                 _write_stack_graph(options, monitor, final=True)
                 raise AttackError(
                     f"the stack did not connect within {options.connect_timeout:.0f} s: {missing}; "
-                    f"stack log: {launcher.log_path(stack.name)}"
+                    f"stack log: {launcher.log_path(stack[0].name)}"
                 )
         limit = options.startup_timeout if len(journal) == 0 else options.query_timeout
         if now - last_change > limit:

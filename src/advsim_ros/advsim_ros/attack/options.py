@@ -10,9 +10,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from advsim_ros.adapters.profile import ProcessProfile, StackProfile, profile_from_mapping
 from advsim_ros.contract import topics
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.ros.launcher import python_module_command
+from advsim_ros.ros.launcher import NodeSpec, python_module_command
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 REPO_PARAMS = PACKAGE_ROOT.parents[2] / "params"
@@ -46,6 +47,7 @@ class StackSpec:
     restart: bool = True  # start it again when it exits during the attack
     rename_node: bool = False  # reference stacks are single nodes; users' commands keep their names
     sim_time: bool = True  # append `-p use_sim_time:=true` (off for commands that take no --ros-args)
+    profile: StackProfile | None = None  # --stack-profile: its processes and adapters (then no remappings)
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.remappings) - set(STACK_TOPIC_NAMES))
@@ -67,8 +69,63 @@ class StackSpec:
         return {stack: contract for contract, stack in self.remappings.items()}
 
     def relayed(self) -> dict[str, str]:
-        """Contract topic -> the stack's name, for stack_relay and the player (relay mode)."""
+        """Contract topic -> the stack's name, for stack_adapter and the player (profiles, relay mode)."""
+        if self.profile is not None:
+            return self.profile.renamed()
         return dict(self.remappings) if self.remap_mode == "relay" else {}
+
+    def adapter_profile(self) -> StackProfile | None:
+        """The profile stack_adapter works from, when the graph needs one: a profile's, or --remap's in relay mode."""
+        if self.profile is not None:
+            return self.profile if self.profile.adapted() else None
+        if not self.relayed():
+            return None
+        renamed = self.relayed()
+        inputs: dict[str, Any] = {"topics": {}}
+        outputs: dict[str, Any] = {}
+        for contract, theirs in renamed.items():
+            if contract == topics.LIDAR.name:
+                inputs["lidar"] = {"topic": theirs}
+            elif contract == topics.ODOM.name:
+                inputs["pose"] = {"topic": theirs}
+            elif contract == topics.PLAN.name:
+                outputs["plan"] = {"topic": theirs}
+            elif contract == topics.DETECTIONS.name:
+                outputs["detections"] = theirs
+            elif contract == topics.PREDICTIONS.name:
+                outputs["predictions"] = theirs
+            else:
+                inputs["topics"][contract] = theirs
+        mapping = {"name": self.name, "processes": [{"command": shlex.join(self.command)}], "inputs": inputs}
+        return profile_from_mapping({**mapping, "outputs": outputs}, Path.cwd(), "--remap")
+
+    def processes(self) -> tuple[NodeSpec, ...]:
+        """The stack's processes as the launcher starts them (the first one is the stack's main process)."""
+        if self.profile is None:
+            return (
+                NodeSpec(
+                    self.name,
+                    self.command,
+                    remappings=self.rename_rules(),
+                    params_files=self.params_files,
+                    parameters={"use_sim_time": True} if self.sim_time else {},
+                    rename_node=self.rename_node,
+                ),
+            )
+        return tuple(_process_spec(self.profile, process) for process in self.profile.processes)
+
+    @staticmethod
+    def from_profile(profile: StackProfile) -> StackSpec:
+        """The stack a profile describes (``--stack-profile FILE``)."""
+        first = profile.processes[0]
+        return StackSpec(
+            profile.name,
+            first.argv,
+            params_files=tuple(path for process in profile.processes for path in profile.params_paths(process)),
+            restart=profile.restart,
+            sim_time=profile.use_sim_time,
+            profile=profile,
+        )
 
     @staticmethod
     def reference(params_dir: Path | None = None) -> StackSpec:
@@ -107,6 +164,23 @@ class StackSpec:
             # a user's command line gets --ros-args only for remappings (ros2 launch takes none)
             spec = StackSpec("stack", command, sim_time=False)
         return dataclasses.replace(spec, remappings=dict(remappings or {}))
+
+
+def _process_spec(profile: StackProfile, process: ProcessProfile) -> NodeSpec:
+    """One process of a profile as the launcher starts it (--ros-args only for commands that take them)."""
+    if not process.ros_args:
+        return NodeSpec(process.name, process.argv, rename_node=False)
+    parameters: dict[str, str | int | float | bool] = dict(process.parameters)
+    if profile.use_sim_time:
+        parameters.setdefault("use_sim_time", True)
+    return NodeSpec(
+        process.name,
+        process.argv,
+        remappings=dict(process.remappings),
+        params_files=profile.params_paths(process),
+        parameters=parameters,
+        rename_node=False,
+    )
 
 
 @dataclass(frozen=True)

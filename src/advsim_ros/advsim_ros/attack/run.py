@@ -44,7 +44,8 @@ from advsim_ros.ros.trace import Trace
 JOURNAL_NAME = "queries.jsonl"
 CONTAINER = "graph_nodes"  # the process of the light nodes (nodes/container.py)
 RESIM = "lidar_resim"  # in a process of its own: it computes while the others wait
-RELAY = "stack_relay"  # with --remap (relay mode): the stack's own topic names bridged to the contract's
+ADAPTER = "stack_adapter"  # with a stack profile or --remap (relay mode): the stack's names, types, frames, timing
+ADAPTER_PROFILE = "stack_profile.json"  # in OUTDIR/run: the profile stack_adapter works from
 _LIGHT_NODES = ("scenario_player", "scorer", "perturber", "search")
 _REPLAY_LIGHT_NODES = ("scenario_player", "scorer")
 
@@ -79,9 +80,16 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
                 options.algorithm: {"max_queries": options.queries},
             }
         }
-    if options.stack.relayed():  # the stack keeps its own topic names: stack_relay bridges them
-        overrides["/scenario_player"]["ros__parameters"]["stack_topics"] = _pairs(options.stack.relayed())
-        overrides[f"/{RELAY}"] = {"ros__parameters": {"relays": _pairs(options.stack.relayed())}}
+    player = overrides["/scenario_player"]["ros__parameters"]
+    if options.stack.relayed():  # the stack keeps its own topic names: stack_adapter bridges them
+        player["stack_topics"] = _pairs(options.stack.relayed())
+    profile = options.stack.profile
+    if profile is not None and profile.timing.timer:  # a stack planning on its own timer: /clock is stepped
+        player.update(
+            clock_step=profile.timing.clock_step,
+            real_time_factor=profile.timing.real_time_factor,
+            wait_for_every_plan=False,
+        )
     for node, values in options.parameter_overrides.items():
         entry = overrides.setdefault(f"/{node}", {"ros__parameters": {}})["ros__parameters"]
         entry.update(json.loads(json.dumps(values)))
@@ -107,6 +115,9 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
     stack = Digest("stack")
     for path in options.stack.params_files:
         stack.raw(path.read_bytes() if path.exists() else b"")
+    adapter = options.stack.adapter_profile()
+    if adapter is not None:
+        stack.text(json.dumps({**json.loads(adapter.to_json()), "folder": ""}, sort_keys=True))
     return Fingerprint(
         {
             "bag": str(checked.bag),
@@ -192,23 +203,18 @@ def _run_graph(
             parameters={"run_id": run_id},
         ),
     ]
-    if options.stack.relayed():
+    adapter = options.stack.adapter_profile()
+    if adapter is not None:
+        profile_file = options.out_dir.resolve() / "run" / ADAPTER_PROFILE
+        write_text_atomically(profile_file, adapter.to_json())
         specs.append(
             NodeSpec(
-                RELAY,
-                python_module_command("advsim_ros.nodes.stack_relay"),
-                params_files=(overrides_file,),
-                parameters={"run_id": run_id},
+                ADAPTER,
+                python_module_command("advsim_ros.nodes.stack_adapter"),
+                parameters={"run_id": run_id, "profile_file": str(profile_file)},
             )
         )
-    stack = NodeSpec(
-        options.stack.name,
-        options.stack.command,
-        remappings=options.stack.rename_rules(),
-        params_files=options.stack.params_files,
-        parameters={"use_sim_time": True} if options.stack.sim_time else {},
-        rename_node=options.stack.rename_node,
-    )
+    stack = options.stack.processes()
     with reserve_domain_id() as lease:
         env = graph_environment(lease.domain_id)
         os.environ.update(graph_overrides(lease.domain_id))  # the monitor in this process joins the same graph
@@ -219,7 +225,8 @@ def _run_graph(
             Launcher(env, log_dir, lease) as launcher,
             AttackMonitor(run_id, skip, StackNames(options.stack.relayed())) as monitor,
         ):
-            launcher.start(stack)
+            for process in stack:
+                launcher.start(process)
             for spec in specs:
                 launcher.start(spec)
             crashes = follow(options, checked, launcher, monitor, stack, specs, journal, progress)

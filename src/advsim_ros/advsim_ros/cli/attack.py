@@ -13,6 +13,7 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
+from advsim_ros.adapters.profile import load_profile
 from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
 from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
@@ -84,6 +85,14 @@ def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--remap-file", type=Path, default=None, help="YAML mapping of contract topic -> your topic")
     parser.add_argument(
+        "--stack-profile",
+        type=Path,
+        default=None,
+        metavar="FILE.yaml",
+        help="how to start your stack and adapt it (processes, topics, types, frames, timer-driven planning; "
+        "docs/stacks.md); replaces --stack and --remap",
+    )
+    parser.add_argument(
         "--remap-mode",
         choices=("relay", "rename"),
         default="relay",
@@ -108,6 +117,11 @@ def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def stack_spec(args: argparse.Namespace) -> StackSpec:
+    if args.stack_profile is not None:
+        if args.stack != "reference" or args.remap or args.remap_file is not None:
+            raise CommandError("--stack-profile says how to start and connect the stack: leave out --stack and --remap")
+        spec = StackSpec.from_profile(load_profile(args.stack_profile))
+        return dataclasses.replace(spec, restart=spec.restart and not args.no_restart)
     remappings: dict[str, str] = {}
     if args.remap_file is not None:
         try:

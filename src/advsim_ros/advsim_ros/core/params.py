@@ -52,6 +52,9 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         options = typing.get_args(annotation)
         if value is None and type(None) in options:
             return None
+        present = [option for option in options if option is not type(None)]
+        if len(present) == 1:  # Optional[X]: X's own message says what is wrong
+            return _coerce(value, present[0], key)
         for option in options:
             if option is type(None):
                 continue
@@ -70,6 +73,16 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         return tuple(_coerce(item, item_type, f"{key}[{index}]") for index, item in enumerate(value))
     if annotation is Any:
         return value
+    if origin is dict:  # dict[str, V]: a mapping with string keys
+        key_type, value_type = typing.get_args(annotation)
+        if not isinstance(value, Mapping):
+            raise ParamsError(f"{key}: expected a mapping, got {value!r}")
+        return {
+            _coerce(item_key, key_type, key): _coerce(item, value_type, f"{key}.{item_key}")
+            for item_key, item in value.items()
+        }
+    if dataclasses.is_dataclass(annotation):  # a nested section
+        return config_from_mapping(typing.cast(type[Any], annotation), value, key)
     if annotation is bool:
         if not isinstance(value, bool):
             raise ParamsError(f"{key}: expected true or false, got {value!r}")

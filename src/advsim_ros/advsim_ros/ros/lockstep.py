@@ -31,7 +31,7 @@ POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
 # Nodes of the attack graph itself; every other node on the domain belongs to the stack.
 GRAPH_NODE_NAMES = frozenset(
-    {"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor", "stack_relay"}
+    {"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor", "stack_adapter"}
 )
 
 
@@ -69,7 +69,7 @@ class StampedArrivals:
 class StackNames:
     """The names under which the stack's own endpoints of the contract topics are found.
 
-    The contract's names, unless the stack keeps names of its own and stack_relay bridges them
+    The contract's names, unless the stack keeps names of its own and stack_adapter bridges them
     (``advsim attack --remap CONTRACT:=STACK``): then the stack is looked for under its names.
     """
 
@@ -211,12 +211,16 @@ class PlayerConfig:
     wait_for_every_plan: bool = True  # wait for a plan at every frame (stacks planning per sweep), else only the last
     prefetch_frames: int = 3  # frames lidar_resim renders ahead of the one the stack is planning from
     settle_time: float = 1.0  # how long a new connection to the stack must hold before a query starts [s]
-    stack_topics: tuple[str, ...] = ()  # CONTRACT:=STACK: topics the stack keeps its own names for (stack_relay)
+    stack_topics: tuple[str, ...] = ()  # CONTRACT:=STACK: topics the stack keeps its own names for (stack_adapter)
+    clock_step: float = 0.0  # > 0: a stack planning on its own timer; /clock advances in these steps [s]
+    real_time_factor: float = 1.0  # clock_step > 0: simulated seconds per wall-clock second while stepping
 
     def __post_init__(self) -> None:
-        for name in ("plan_timeout", "sweep_timeout", "ready_timeout", "settle_time"):
+        for name in ("plan_timeout", "sweep_timeout", "ready_timeout", "settle_time", "real_time_factor"):
             if not getattr(self, name) > 0.0:
                 raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
+        if self.clock_step < 0.0:
+            raise ScenarioError(f"/scenario_player clock_step: must be >= 0, got {self.clock_step}")
         if self.prefetch_frames < 1:
             raise ScenarioError(f"/scenario_player prefetch_frames: must be >= 1, got {self.prefetch_frames}")
         StackNames.from_pairs(self.stack_topics)  # refused here, with the pair named, when malformed
@@ -303,9 +307,16 @@ def replay_query(
             outputs.trace("sweep_sent", query_id, index)
             delivered += 1
             inputs_digest.sweep(sweep)
-        if decision or (config.wait_for_every_plan and plans_flowing):
+        stepping = config.clock_step > 0.0
+        if stepping and not decision:  # a timer-driven stack: time passes between sweeps as on the road
+            until = clock.to_sim(query_id, history[index + 1].log_stamp_ns)
+            _step_clock(sim, until, config, outputs, stop)
+        if decision or (config.wait_for_every_plan and plans_flowing and not stepping):
             awaited += 1
-            plan = inputs.plans.wait(sim, config.plan_timeout, stack_gone)
+            if stepping:
+                plan = _stepped_wait(inputs.plans, sim, config, outputs, stack_gone)
+            else:
+                plan = inputs.plans.wait(sim, config.plan_timeout, stack_gone)
             if plan is None:
                 plans_flowing = False  # do not wait at every frame for a stack that has stopped answering
             else:
@@ -338,3 +349,33 @@ def replay_query(
     outputs.episode(done, answers["detections"], answers["predictions"])
     outputs.trace("done_sent", query_id, -1)
     return done
+
+
+def _step_clock(start_ns: int, until_ns: int, config: PlayerConfig, outputs: Outputs, stop: threading.Event) -> None:
+    """Publish /clock from start + one step up to (not including) until, one step per step/real_time_factor s."""
+    step_ns = round(config.clock_step * 1e9)
+    pace = config.clock_step / config.real_time_factor
+    now = start_ns + step_ns
+    while now < until_ns and not stop.wait(pace):
+        outputs.clock(codec.clock_cdr(now))
+        now += step_ns
+
+
+def _stepped_wait(
+    plans: StampedArrivals, sweep_ns: int, config: PlayerConfig, outputs: Outputs, give_up: Callable[[], bool]
+) -> bytes | None:
+    """The plan for the sweep stamped sweep_ns, stepping /clock on until it comes (stack_adapter answers
+    a timer-driven stack's sweep once the decision delay has passed on the sim clock) or plan_timeout passes."""
+    step_ns = round(config.clock_step * 1e9)
+    pace = config.clock_step / config.real_time_factor
+    deadline = time.monotonic() + config.plan_timeout
+    now = sweep_ns
+    while time.monotonic() < deadline:
+        plan = plans.wait(sweep_ns, pace, give_up)
+        if plan is not None:
+            return plan
+        if give_up():
+            return None
+        now += step_ns
+        outputs.clock(codec.clock_cdr(now))
+    return None
