@@ -2,7 +2,7 @@
 # Idempotent set-up of everything advsim_ros needs on a fresh Debian machine with CPython 3.11:
 #   1. Debian packages the Python wheels need (libusb-1.0-0 for open3d),
 #   2. .venv with the pinned requirements (real ROS 2 Jazzy from the wheels, torch CPU, ...),
-#   3. the advsim_msgs interface package built with rosidl and installed into the venv,
+#   3. the interface packages of msg_defs/ built with rosidl and installed into the venv,
 #   4. advsim_ros installed editable (console scripts for every node and the `advsim` command).
 # Each step is skipped when the inputs it depends on have not changed since it last ran (a hash
 # stamp in .venv/.advsim-stamps), so a second run takes about a second.
@@ -64,7 +64,9 @@ if ! stamp_ok requirements "$req_hash"; then
 fi
 
 # 3. Interface packages built with rosidl from the wheels into the venv prefix: advsim_msgs, and
-#    tf2_msgs (/tf's TFMessage), which the wheels lack.
+#    tf2_msgs (/tf's TFMessage), which the wheels lack, and the Autoware messages the Autoware stack
+#    adapters speak (autoware_planning_msgs: Trajectory; autoware_perception_msgs: detected, tracked
+#    and predicted objects), for machines without Autoware.
 build_interfaces() {
   local pkg=$1 pkg_hash
   pkg_hash=$(hash_of msg_defs/"$pkg"/CMakeLists.txt msg_defs/"$pkg"/package.xml msg_defs/"$pkg"/msg/*.msg scripts/setup.sh)
@@ -94,6 +96,8 @@ build_interfaces() {
 }
 build_interfaces advsim_msgs
 build_interfaces tf2_msgs
+build_interfaces autoware_planning_msgs
+build_interfaces autoware_perception_msgs
 
 # 4. advsim_ros, editable: code changes need no reinstall; entry points change with setup.py.
 pkg_hash=$(hash_of src/advsim_ros/setup.py src/advsim_ros/setup.cfg src/advsim_ros/package.xml)

@@ -12,7 +12,8 @@ PROBE = textwrap.dedent(
     import numpy as np
 
     ROS_PREFIXES = ("rclpy", "rosidl", "rpyutils", "rmw", "builtin_interfaces", "std_msgs", "sensor_msgs",
-                    "geometry_msgs", "nav_msgs", "advsim_msgs", "rosgraph_msgs", "tf2_msgs")
+                    "geometry_msgs", "nav_msgs", "advsim_msgs", "rosgraph_msgs", "tf2_msgs",
+                    "autoware_planning_msgs", "autoware_perception_msgs", "unique_identifier_msgs")
 
     class RefuseRos:
         def find_spec(self, name, path=None, target=None):

@@ -8,7 +8,7 @@ node publishes is byte for byte what a bag records.
 - ``qos``      the QoS profiles as plain records (rendered to rclpy profiles and to bag metadata)
 - ``topics``   every topic: default name, type and QoS (the README's topic table)
 - ``enums``    episode phases and outcomes, query statuses
-- ``codec``    the typestore (ROS 2 Jazzy + advsim_msgs), CDR encode/decode, stamps and headers
+- ``codec``    the typestore (ROS 2 Jazzy + advsim_msgs + Autoware), CDR encode/decode, stamps and headers
 - ``spatial``  poses, transforms, odometry, TF
 - ``scenario`` scenario messages: PointCloud2, RoadMap, ScenarioInfo, drivable-area grid
 - ``tracks``   ActorTrack / ActorTrackArray

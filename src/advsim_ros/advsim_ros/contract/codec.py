@@ -1,8 +1,9 @@
-"""Messages as CDR bytes: one rosbags typestore (ROS 2 Jazzy + advsim_msgs), stamps and headers.
+"""Messages as CDR bytes: one rosbags typestore (ROS 2 Jazzy + advsim_msgs + Autoware), stamps and headers.
 
 The graph's nodes publish and subscribe raw CDR (rclpy's ``publish(bytes)`` and ``raw=True``
 subscriptions) built here, and the bag layer writes the same bytes, so a recorded message is
-exactly what was on the topic. advsim_msgs types are registered from the .msg files.
+exactly what was on the topic. advsim_msgs types, and the Autoware messages the Autoware adapters
+speak, are registered from their .msg files (msg_defs/, or an installed package's share folder).
 """
 
 from __future__ import annotations
@@ -20,6 +21,26 @@ from advsim_ros.contract import names
 from advsim_ros.core.types import ScenarioError
 
 MSG_DIR_ENV = "ADVSIM_MSG_DIR"  # folder of advsim_msgs/msg/*.msg, overriding the search below
+ADVSIM_MSGS = "advsim_msgs"
+# The Autoware messages of msg_defs/: same names and fields as Autoware's own packages, so a full
+# Autoware install's share folder serves as well (only these files of it are read).
+AUTOWARE_MESSAGES: dict[str, tuple[str, ...]] = {
+    "autoware_planning_msgs": ("Trajectory", "TrajectoryPoint"),
+    "autoware_perception_msgs": (
+        "DetectedObject",
+        "DetectedObjectKinematics",
+        "DetectedObjects",
+        "ObjectClassification",
+        "PredictedObject",
+        "PredictedObjectKinematics",
+        "PredictedObjects",
+        "PredictedPath",
+        "Shape",
+        "TrackedObject",
+        "TrackedObjectKinematics",
+        "TrackedObjects",
+    ),
+}
 NS_PER_S = 1_000_000_000
 _CDR_HEADER_BYTES = 4  # encapsulation kind and options precede the payload
 
@@ -28,45 +49,68 @@ class ContractError(ScenarioError):
     """A message that does not fit the contract (cannot become the core type it stands for)."""
 
 
-def msg_definitions_dir() -> Path:
-    """The folder of advsim_msgs/msg/*.msg: $ADVSIM_MSG_DIR, the source tree, or the installed share."""
-    override = os.environ.get(MSG_DIR_ENV)
+def msg_definitions_dir(package: str = ADVSIM_MSGS) -> Path:
+    """The folder of ``package``/msg/*.msg: $ADVSIM_MSG_DIR (advsim_msgs only), msg_defs/ of the source
+    tree, or the installed package's share folder."""
+    override = os.environ.get(MSG_DIR_ENV) if package == ADVSIM_MSGS else None
     candidates = [Path(override)] if override else []
-    candidates += [parent / "msg_defs" / "advsim_msgs" / "msg" for parent in Path(__file__).resolve().parents]
+    candidates += [parent / "msg_defs" / package / "msg" for parent in Path(__file__).resolve().parents]
     for candidate in candidates:
         if candidate.is_dir() and any(candidate.glob("*.msg")):
             return candidate
-    installed = _installed_msg_dir()
+    installed = _installed_msg_dir(package)
     if installed is not None:
         return installed
-    raise ContractError(f"advsim_msgs message definitions not found (looked in {[str(c) for c in candidates]})")
+    raise ContractError(f"{package} message definitions not found (looked in {[str(c) for c in candidates]})")
 
 
-def _installed_msg_dir() -> Path | None:
-    """share/advsim_msgs/msg of an installed (colcon or venv) advsim_msgs, when ament_index can find it."""
+def _installed_msg_dir(package: str) -> Path | None:
+    """share/<package>/msg of an installed (colcon or venv) package, when ament_index can find it."""
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        folder = Path(get_package_share_directory("advsim_msgs")) / "msg"
+        folder = Path(get_package_share_directory(package)) / "msg"
     except (ImportError, LookupError, OSError, ValueError):  # not installed, or AMENT_PREFIX_PATH unset
         return None
     return folder if folder.is_dir() and any(folder.glob("*.msg")) else None
 
 
+def _typesdict(package: str, stems: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """Field definitions of a package's messages (all of its .msg files, or those named), parsed."""
+    folder = msg_definitions_dir(package)
+    paths = sorted(folder.glob("*.msg")) if stems is None else [folder / f"{stem}.msg" for stem in stems]
+    types: dict[str, Any] = {}
+    for path in paths:
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as error:
+            raise ContractError(f"{package} message definition {path} unreadable: {error}") from error
+        types.update(get_types_from_msg(text, f"{package}/msg/{path.stem}"))
+    return types
+
+
 @functools.cache
 def advsim_typesdict() -> dict[str, Any]:
     """advsim_msgs' field definitions, parsed from the .msg files."""
+    return _typesdict(ADVSIM_MSGS)
+
+
+@functools.cache
+def autoware_typesdict() -> dict[str, Any]:
+    """The Autoware messages' field definitions (AUTOWARE_MESSAGES), parsed from the .msg files."""
     types: dict[str, Any] = {}
-    for path in sorted(msg_definitions_dir().glob("*.msg")):
-        types.update(get_types_from_msg(path.read_text(encoding="utf-8"), f"advsim_msgs/msg/{path.stem}"))
+    for package, stems in AUTOWARE_MESSAGES.items():
+        types.update(_typesdict(package, stems))
     return types
 
 
 @functools.cache
 def typestore() -> Typestore:
-    """The shared typestore: ROS 2 Jazzy's types plus advsim_msgs (read-only after creation)."""
+    """The shared typestore: ROS 2 Jazzy's types plus advsim_msgs and the Autoware messages (read-only
+    after creation)."""
     store = get_typestore(Stores.ROS2_JAZZY)
     store.register(advsim_typesdict())
+    store.register(autoware_typesdict())
     return store
 
 

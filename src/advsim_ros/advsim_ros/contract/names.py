@@ -32,3 +32,17 @@ POLYLINE = "advsim_msgs/msg/Polyline"
 ROAD_MAP = "advsim_msgs/msg/RoadMap"
 SCENARIO_INFO = "advsim_msgs/msg/ScenarioInfo"
 SEARCH_STATUS = "advsim_msgs/msg/SearchStatus"
+
+# Autoware (msg_defs/autoware_planning_msgs, msg_defs/autoware_perception_msgs: the same types as a
+# full Autoware install's)
+AUTOWARE_TRAJECTORY = "autoware_planning_msgs/msg/Trajectory"
+AUTOWARE_TRAJECTORY_POINT = "autoware_planning_msgs/msg/TrajectoryPoint"
+AUTOWARE_DETECTED_OBJECTS = "autoware_perception_msgs/msg/DetectedObjects"
+AUTOWARE_DETECTED_OBJECT = "autoware_perception_msgs/msg/DetectedObject"
+AUTOWARE_TRACKED_OBJECTS = "autoware_perception_msgs/msg/TrackedObjects"
+AUTOWARE_TRACKED_OBJECT = "autoware_perception_msgs/msg/TrackedObject"
+AUTOWARE_PREDICTED_OBJECTS = "autoware_perception_msgs/msg/PredictedObjects"
+AUTOWARE_PREDICTED_OBJECT = "autoware_perception_msgs/msg/PredictedObject"
+AUTOWARE_PREDICTED_PATH = "autoware_perception_msgs/msg/PredictedPath"
+AUTOWARE_OBJECT_CLASSIFICATION = "autoware_perception_msgs/msg/ObjectClassification"
+AUTOWARE_SHAPE = "autoware_perception_msgs/msg/Shape"

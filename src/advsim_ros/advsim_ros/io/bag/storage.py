@@ -1,8 +1,8 @@
 """Opening rosbag2 folders (MCAP or sqlite3) with rosbags: errors as BagError, types from the bag itself.
 
 A bag is self-describing: the message definitions it stores are registered first, then ROS 2
-Jazzy's and advsim_msgs' for what it lacks, so bags written by older versions of the project
-(or by other tools) decode with their own definitions.
+Jazzy's, advsim_msgs' and the Autoware messages' (codec.typestore) for what it lacks, so bags
+written by older versions of the project (or by other tools) decode with their own definitions.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class BagReader:
         self.store = self._typestore()
 
     def _typestore(self) -> Typestore:
-        """The bag's own message definitions first (it is self-describing), then Jazzy's and advsim_msgs'."""
+        """The bag's own message definitions first (it is self-describing), then codec.typestore()'s."""
         store = get_typestore(Stores.EMPTY)
         for connection in self.reader.connections:
             if connection.msgdef.format != MessageDefinitionFormat.MSG or not connection.msgdef.data:
