@@ -37,15 +37,18 @@ def test_the_autoware_profile_renames_and_converts() -> None:
         "/ego/odom": "/localization/kinematic_state",
         "/planning/trajectory": "/planning/scenario_planning/trajectory",
     }
-    assert profile.converts() and profile.timing.timer
+    assert profile.converts()
+    assert profile.timing.timer
     assert profile.outputs.plan.type == "autoware_trajectory"
 
 
 def test_a_minimal_profile_gets_the_contract_defaults(tmp_path: Path) -> None:
     profile = load_profile(_write(tmp_path, "processes: [{command: my_stack --fast}]\n"))
     assert profile.processes[0].argv == ("my_stack", "--fast")
-    assert profile.timing.mode == "per_sweep" and profile.inputs.pose.type == "odometry"
-    assert profile.renamed() == {} and not profile.adapted()
+    assert profile.timing.mode == "per_sweep"
+    assert profile.inputs.pose.type == "odometry"
+    assert profile.renamed() == {}
+    assert not profile.adapted()
 
 
 def test_commands_expand_environment_variables_and_advsims_interpreter(tmp_path: Path) -> None:
@@ -53,7 +56,9 @@ def test_commands_expand_environment_variables_and_advsims_interpreter(tmp_path:
 
     profile = load_profile(_write(tmp_path, 'processes: [{command: "$ADVSIM_PYTHON -m pkg ${HOME}"}]\n'))
     argv = profile.processes[0].argv
-    assert argv[0] == sys.executable and argv[1:3] == ("-m", "pkg") and "$" not in argv[3]
+    assert argv[0] == sys.executable
+    assert argv[1:3] == ("-m", "pkg")
+    assert "$" not in argv[3]
 
 
 def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
@@ -70,7 +75,10 @@ def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
         ("processes: [{command: a}]\nplanner: x\n", "unknown parameter(s) ['planner']"),
         ("processes: [{command: a}]\noutputs: {plan: {type: trajectory}}\n", "type 'trajectory': one of path"),
         ("processes: [{command: a}]\ninputs: {pose: {type: navsatfix, topic: /fix}}\n", "navsatfix needs a datum"),
-        ("processes: [{command: a}]\noutputs: {plan: {frame_origin: first_fix, frame_id: map}}\n", "needs inputs.pose.type navsatfix"),
+        (
+            "processes: [{command: a}]\noutputs: {plan: {frame_origin: first_fix, frame_id: map}}\n",
+            "needs inputs.pose.type navsatfix",
+        ),
         ("processes: [{command: a}]\noutputs: {plan: {frame_origin: static}}\n", "needs the frame's name in frame_id"),
         ("processes: [{command: a}]\ninputs: {lidar: {topic: points}}\n", "'points' is not an absolute topic name"),
         ("processes: [{command: a}]\ntiming: {mode: timer, clock_step: 0.0}\n", "clock_step: must be positive"),

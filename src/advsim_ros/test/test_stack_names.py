@@ -54,7 +54,7 @@ def test_a_stack_with_its_own_topic_names_is_connected_by_the_relay_or_by_renami
     assert {q["score"]["status"] for q in relayed["queries"]} == {"ok"}
     assert {q["score"]["plans_received"] for q in relayed["queries"]} == {10}  # every frame answered
     logs = tmp_path / "relay" / "run" / "logs"
-    assert "relaying /sensor/lidar/points -> /points_raw" in (logs / "stack_relay.log").read_text()
+    assert "relaying /sensor/lidar/points -> /points_raw" in (logs / "stack_adapter.log").read_text()
 
     renamed = _attack(
         synthetic_bag,
@@ -63,7 +63,7 @@ def test_a_stack_with_its_own_topic_names_is_connected_by_the_relay_or_by_renami
         "--remap-mode",
         "rename",
     )
-    assert not (tmp_path / "rename" / "run" / "logs" / "stack_relay.log").exists()
+    assert not (tmp_path / "rename" / "run" / "logs" / "stack_adapter.log").exists()
     assert _scores(renamed) == _scores(relayed)
 
 

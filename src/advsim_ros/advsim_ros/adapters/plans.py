@@ -119,31 +119,41 @@ def _driven_times(arc: FloatArray, speeds: FloatArray) -> FloatArray:
     return times
 
 
-def _rule_times(arc: FloatArray, ego_speed: float, output: PlanOutput) -> FloatArray:
-    """Time at each arc length driving from ego_speed at the profile's acceleration, within [0, max_speed]."""
-    step = 0.01  # [s] integration step of the speed rule
-    horizon = output.horizon + output.step
-    grid = np.arange(0.0, horizon + step, step)
-    speed = np.clip(max(ego_speed, 0.0) + output.acceleration * grid, 0.0, output.max_speed)
-    travelled = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * step)])
-    if travelled[-1] <= 0.0:
-        standing = np.full_like(arc, np.inf)
-        standing[0] = 0.0
-        return standing
-    times: FloatArray = np.asarray(np.interp(arc, travelled, grid, right=np.inf), dtype=np.float64)
-    # arc lengths beyond what is driven within the horizon are never reached
-    times[arc > travelled[-1]] = np.inf
-    return times
+def _rule_distance(wanted: FloatArray, ego_speed: float, output: PlanOutput) -> FloatArray:
+    """Distance driven by each wanted time [s] from ego_speed at the profile's acceleration, within [0, max_speed]."""
+    speed_at = np.clip(max(ego_speed, 0.0) + output.acceleration * np.maximum(wanted, 0.0), 0.0, output.max_speed)
+    if output.acceleration == 0.0:
+        distance: FloatArray = speed_at * np.maximum(wanted, 0.0)
+        return distance
+    # piecewise: accelerate (or brake) until the speed limit (or a stop), then hold that speed
+    start = min(max(ego_speed, 0.0), output.max_speed)
+    limit = output.max_speed if output.acceleration > 0.0 else 0.0
+    switch = (limit - start) / output.acceleration
+    t = np.maximum(wanted, 0.0)
+    ramp = np.minimum(t, switch)
+    distance = start * ramp + 0.5 * output.acceleration * ramp**2 + limit * np.maximum(t - switch, 0.0)
+    return distance
 
 
-def timed(poses: Poses, plan_stamp_ns: int, ego_speed: float, output: PlanOutput) -> tuple[FloatArray, Poses]:
-    """(times [s] after plan_stamp_ns of each pose, poses); inf for poses the rule never reaches."""
-    if poses.stamps_ns is not None:
-        return (poses.stamps_ns - plan_stamp_ns).astype(np.float64) / NS_PER_S, poses
+def _along(poses: Poses, distance: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Positions and headings at these distances along the path (held at its ends)."""
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses.xy, axis=0), axis=1))])
-    if poses.speeds is not None:
-        return _driven_times(arc, np.maximum(poses.speeds, 0.0)), poses
-    return _rule_times(arc, ego_speed, output), poses
+    if arc[-1] <= 0.0:
+        return np.repeat(poses.xy[:1], distance.shape[0], axis=0), np.repeat(poses.yaws[:1], distance.shape[0])
+    keep = np.concatenate([[True], np.diff(arc) > 0.0])  # repeated poses would make arc length not increase
+    arc, xy, yaws = arc[keep], poses.xy[keep], np.unwrap(poses.yaws[keep])
+    x = np.interp(distance, arc, xy[:, 0])
+    y = np.interp(distance, arc, xy[:, 1])
+    return np.column_stack([x, y]), np.interp(distance, arc, yaws)
+
+
+def timed(poses: Poses, plan_stamp_ns: int) -> FloatArray:
+    """Times [s] after plan_stamp_ns at which the stack's timed or speed-annotated poses are reached (inf: never)."""
+    if poses.stamps_ns is not None:
+        return (poses.stamps_ns - plan_stamp_ns).astype(np.float64) / NS_PER_S
+    assert poses.speeds is not None
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses.xy, axis=0), axis=1))])
+    return _driven_times(arc, np.maximum(poses.speeds, 0.0))
 
 
 def _resample(times: FloatArray, poses: Poses, wanted: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -166,10 +176,12 @@ def contract_plan(
     transform: PlanarTransform,
 ) -> Plan:
     """The contract's plan for the sweep stamped sweep_stamp_ns from what the stack answered at plan_stamp_ns."""
-    times, poses = timed(poses, plan_stamp_ns, ego_speed, output)
     step_ns = round(output.step * NS_PER_S)
     stamps = sweep_stamp_ns + step_ns * np.arange(1, output.num_steps + 1, dtype=np.int64)
     wanted = (stamps - plan_stamp_ns).astype(np.float64) / NS_PER_S
-    xy, yaws = _resample(times, poses, wanted)
+    if poses.stamps_ns is None and poses.speeds is None:  # a path and nothing more: the speed rule drives it
+        xy, yaws = _along(poses, _rule_distance(wanted, ego_speed, output))
+    else:
+        xy, yaws = _resample(timed(poses, plan_stamp_ns), poses, wanted)
     world_xy, world_yaws = transform.apply(xy, yaws)
     return Plan(stamps_ns=stamps, xy=world_xy, yaws=np.arctan2(np.sin(world_yaws), np.cos(world_yaws)))

@@ -115,13 +115,14 @@ class TimingProfile:
     decision_delay: float = 0.1  # timer: the plan in force this long after the decision sweep is scored [s]
     max_plan_age: float = 0.5  # timer: older plans are not in force (they belong to an earlier query) [s]
     plan_stamp: str = "header"  # timer: when a plan was made: its header stamp, or its arrival on the sim clock
+    answer_margin: float = 0.05  # timer: plans made by the decision time are taken this much later (sim clock) [s]
 
     def __post_init__(self) -> None:
         if self.mode not in TIMING_MODES:
             raise ScenarioError(f"mode {self.mode!r}: one of {', '.join(TIMING_MODES)}")
         if self.plan_stamp not in PLAN_STAMPS:
             raise ScenarioError(f"plan_stamp {self.plan_stamp!r}: one of {', '.join(PLAN_STAMPS)}")
-        for name in ("clock_step", "real_time_factor", "decision_delay", "max_plan_age"):
+        for name in ("clock_step", "real_time_factor", "decision_delay", "max_plan_age", "answer_margin"):
             if not getattr(self, name) > 0.0:
                 raise ScenarioError(f"{name}: must be positive, got {getattr(self, name)}")
         if self.decision_delay < self.clock_step:

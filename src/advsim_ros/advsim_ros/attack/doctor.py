@@ -19,6 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from advsim_ros.adapters.messages import PLAN_MSGTYPES, POSE_MSGTYPES
 from advsim_ros.attack.follow import STACK_GRAPH_FILE
 from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.run import run_attack
@@ -27,6 +30,9 @@ from advsim_ros.contract.qos import Durability, Reliability
 from advsim_ros.contract.topics import TopicSpec
 
 REQUIRED = (topics.LIDAR, topics.PLAN)  # without these nothing can be attacked
+SUGGESTED_PROFILE = "suggested_profile.yaml"
+# Types an adapter converts (profile key -> type), by contract topic
+ADAPTED_TYPES = {topics.ODOM.name: POSE_MSGTYPES, topics.PLAN.name: PLAN_MSGTYPES}
 
 
 @dataclass(frozen=True)
@@ -52,11 +58,14 @@ class DoctorReport:
     plans_received: int
     stack_ms_median: float | None  # per sweep: from the sweep sent to its plan back [ms]
     out_dir: Path
+    timer: bool = False  # the profile says the stack plans on its own timer (only the decision plan is awaited)
+    profile: dict[str, Any] | None = None  # a suggested stack profile (written to OUTDIR/suggested_profile.yaml)
 
     @property
     def ok(self) -> bool:
-        """The stack answered every sweep of the window with a plan."""
-        return not self.error and self.sweeps_delivered > 0 and self.plans_received == self.sweeps_delivered
+        """The stack answered every sweep of the window with a plan (a timer-driven one: the decision sweep)."""
+        wanted = 1 if self.timer else self.sweeps_delivered
+        return not self.error and self.sweeps_delivered > 0 and self.plans_received >= wanted > 0
 
     def as_text(self) -> str:
         lines = [f"{'contract topic':<24} {'dir':<4} {'stack topic':<28} {'type':<34} {'QoS':<26} verdict"]
@@ -74,15 +83,20 @@ class DoctorReport:
         if self.sweeps_delivered:
             timing = f", {self.stack_ms_median:.0f} ms per sweep (median)" if self.stack_ms_median is not None else ""
             lines.append(f"plans: {self.plans_received} of {self.sweeps_delivered} sweeps answered{timing}")
-            if self.plans_received < self.sweeps_delivered:
+            if self.timer:
+                lines.append("  the profile says the stack plans on its own timer: the decision sweep's plan counts")
+            elif self.plans_received < self.sweeps_delivered:
                 lines.append(
                     "  the contract wants one nav_msgs/Path per sweep with header.stamp = the sweep's stamp; a stack "
-                    "planning on its own timer: --param scenario_player.wait_for_every_plan=false"
+                    "planning on its own timer: a stack profile with timing: {mode: timer}"
                 )
         if self.error:
             lines.append(f"replay: {self.error}")
         if self.suggestions:
             lines.append("to connect it, try: " + " ".join(self.suggestions))
+        if self.profile is not None and not self.ok:
+            lines.append(f"a stack profile that would connect it ({self.out_dir / SUGGESTED_PROFILE}):")
+            lines.extend("  " + line for line in yaml.safe_dump(self.profile, sort_keys=False).splitlines())
         lines.append(f"verdict: {'ready to attack' if self.ok else 'NOT ready'} (details in {self.out_dir})")
         return "\n".join(lines)
 
@@ -108,7 +122,11 @@ def _qos_problem(spec: TopicSpec, direction: str, qos: dict[str, Any] | None) ->
     return ""
 
 
-def topic_rows(nodes: list[dict[str, Any]], renamed: dict[str, str]) -> list[TopicRow]:
+def topic_rows(
+    nodes: list[dict[str, Any]], renamed: dict[str, str], expected: dict[str, str] | None = None
+) -> list[TopicRow]:
+    """The stack's endpoint for every contract topic; ``expected``: types a profile adapts (contract topic -> type)."""
+    expected = expected or {}
     rows = []
     for spec in topics.STACK_TOPICS:
         direction = "in" if spec in topics.STACK_INPUTS else "out"
@@ -120,8 +138,12 @@ def topic_rows(nodes: list[dict[str, Any]], renamed: dict[str, str]) -> list[Top
             rows.append(TopicRow(spec.name, direction, name, "", "", "", verdict))
             continue
         endpoint = hits[0][1]
-        if endpoint["type"] != spec.msgtype:
-            verdict = f"wrong type: the contract's is {spec.msgtype}"
+        wanted = expected.get(spec.name, spec.msgtype)
+        if endpoint["type"] != wanted:
+            adapted = ADAPTED_TYPES.get(spec.name, {})
+            adaptable = [key for key, msgtype in adapted.items() if msgtype == endpoint["type"]]
+            hint = f" (a profile adapts it: type {' or '.join(adaptable)})" if adaptable else ""
+            verdict = f"wrong type: expected {wanted}{hint}"
         else:
             verdict = _qos_problem(spec, direction, endpoint["qos"]) or "ok"
         found = ", ".join(sorted({node for node, _ in hits}))
@@ -149,6 +171,46 @@ def suggestions(nodes: list[dict[str, Any]], rows: list[TopicRow]) -> list[str]:
         if len(candidates) == 1:
             found.append(f"--remap {row.contract}:={candidates[0]}")
     return found
+
+
+def _types_for(spec: TopicSpec) -> set[str]:
+    """The types a stack's endpoint for this contract topic may have (the contract's, or one an adapter converts)."""
+    return {spec.msgtype, *ADAPTED_TYPES.get(spec.name, {}).values()}
+
+
+def suggested_profile(nodes: list[dict[str, Any]], command: tuple[str, ...], timer: bool) -> dict[str, Any]:
+    """A stack profile from what the stack was seen to read and publish (every contract topic it has one
+    candidate for, of the contract's type or one an adapter converts)."""
+    found: dict[str, tuple[str, str]] = {}
+    for spec in topics.STACK_TOPICS:
+        side = "subscribes" if spec in topics.STACK_INPUTS else "publishes"
+        candidates = sorted(
+            {(e["topic"], e["type"]) for node in nodes for e in node[side] if e["type"] in _types_for(spec)}
+        )
+        if len(candidates) == 1:
+            found[spec.name] = candidates[0]
+    inputs: dict[str, Any] = {}
+    outputs: dict[str, Any] = {}
+    if topics.LIDAR.name in found:
+        inputs["lidar"] = {"topic": found[topics.LIDAR.name][0]}
+    if topics.ODOM.name in found:
+        topic, msgtype = found[topics.ODOM.name]
+        kind = next(key for key, value in POSE_MSGTYPES.items() if value == msgtype)
+        inputs["pose"] = {"topic": topic, "type": kind}
+        if kind == "navsatfix":
+            inputs["pose"]["datum"] = {"latitude": 0.0, "longitude": 0.0, "altitude": 0.0}  # put yours here
+    if topics.PLAN.name in found:
+        topic, msgtype = found[topics.PLAN.name]
+        kind = next(key for key, value in PLAN_MSGTYPES.items() if value == msgtype)
+        outputs["plan"] = {"topic": topic, "type": kind}
+    profile: dict[str, Any] = {"profile": 1, "name": "my_stack", "processes": [{"command": " ".join(command)}]}
+    if timer:
+        profile["timing"] = {"mode": "timer"}
+    if inputs:
+        profile["inputs"] = inputs
+    if outputs:
+        profile["outputs"] = outputs
+    return profile
 
 
 def _stack_ms(trace_dir: Path) -> float | None:
@@ -187,9 +249,24 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
             os.environ[TRACE_ENV] = previous
     graph_file = out_dir / "run" / STACK_GRAPH_FILE
     nodes: list[dict[str, Any]] = json.loads(graph_file.read_text()) if graph_file.exists() else []
-    rows = topic_rows(nodes, options.stack.relayed())  # renamed (--remap-mode rename): the contract's names
+    profile = options.stack.profile
+    expected = {}
+    if profile is not None:
+        expected[topics.ODOM.name] = POSE_MSGTYPES[profile.inputs.pose.type]
+        expected[topics.PLAN.name] = PLAN_MSGTYPES[profile.outputs.plan.type]
+    rows = topic_rows(nodes, options.stack.relayed(), expected)  # renamed (--remap-mode rename): the contract's
     score = (summary.get("queries") or [{}])[0].get("score", {}) if summary else {}
+    timer = profile is not None and profile.timing.timer
+    plans, sweeps = int(score.get("plans_received") or 0), int(score.get("sweeps_delivered") or 0)
+    seen_timer = timer or (0 < plans < sweeps)  # answers some sweeps, not each: planning on a timer
+    suggestion = suggested_profile(nodes, options.stack.command, seen_timer)
+    if nodes:
+        from advsim_ros.core.atomic import write_text_atomically
+
+        write_text_atomically(out_dir / SUGGESTED_PROFILE, yaml.safe_dump(suggestion, sort_keys=False))
     return DoctorReport(
+        timer=timer,
+        profile=suggestion if nodes else None,
         nodes=nodes,
         rows=rows,
         suggestions=suggestions(nodes, rows),

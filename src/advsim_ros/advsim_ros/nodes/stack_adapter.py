@@ -12,7 +12,8 @@ differs from the contract. It never changes what the stack is told, only how it 
   planning per sweep stamps its answer with the sweep; a stack planning on its own timer (the
   player then steps /clock) is answered for the sweep stamped S with the plan in force at
   S + decision_delay: the latest one made by then (header stamp, or arrival on the sim clock),
-  no older than max_plan_age; when there is none yet, the first one made after it.
+  no older than max_plan_age, taken once the clock is answer_margin past that time (so that a plan
+  made at the decision time itself has arrived); when there is none, the first one made after it.
 
 Parameters: ``profile_file`` (the profile as the attack wrote it, JSON), ``run_id``.
 """
@@ -26,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
+from advsim_ros.adapters import messages as foreign
 from advsim_ros.adapters.plans import Poses, contract_plan, frame_transform
 from advsim_ros.adapters.profile import StackProfile, load_profile
-from advsim_ros.adapters import messages as foreign
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import path_msg
@@ -178,9 +179,10 @@ class StackAdapter(GraphNode):
         """Answer every pending sweep whose decision time has come, with the plan in force then."""
         delay = round(self.timing.decision_delay * NS_PER_S)
         oldest = round(self.timing.max_plan_age * NS_PER_S)
+        margin = round(self.timing.answer_margin * NS_PER_S)  # a plan made at the decision time is on its way
         for sweep in list(self.pending):
             due = sweep + delay
-            if self.clock_ns < due:
+            if self.clock_ns < due + margin:
                 continue
             in_force = [m for m in self.made if due - oldest <= m.made_ns <= due]
             later = [m for m in self.made if m.made_ns > due]

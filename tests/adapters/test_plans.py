@@ -1,0 +1,104 @@
+"""A stack's answer in any shape becomes the contract's plan by the stated rules (adapters.plans)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from advsim_ros.adapters.plans import (
+    PlanarTransform,
+    Poses,
+    contract_plan,
+    enu_of,
+    frame_transform,
+    geodetic_of,
+)
+from advsim_ros.adapters.profile import Datum, PlanOutput
+
+S = 5_000_000_000  # the sweep's stamp [ns]
+STEP = 100_000_000
+
+
+def _line(length: float, spacing: float = 1.0, yaw: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    d = np.arange(0.0, length + 1e-9, spacing)
+    return np.column_stack([d * math.cos(yaw), d * math.sin(yaw)]), np.full(d.shape, yaw)
+
+
+def test_a_timed_plan_on_the_contract_grid_is_kept_as_it_is() -> None:
+    stamps = S + STEP * np.arange(1, 51)
+    xy = np.column_stack([np.arange(1, 51) * 0.7, np.zeros(50)])
+    plan = contract_plan(Poses(xy, np.zeros(50), stamps_ns=stamps), S, S, 0.0, PlanOutput(), PlanarTransform())
+    np.testing.assert_array_equal(plan.stamps_ns, stamps)
+    np.testing.assert_allclose(plan.xy, xy)
+
+
+def test_a_spatial_path_is_driven_at_the_egos_speed_and_stops_where_it_ends() -> None:
+    xy, yaws = _line(20.0)
+    plan = contract_plan(Poses(xy, yaws), S, S, 8.0, PlanOutput(), PlanarTransform())
+    times = (plan.stamps_ns - S) / 1e9
+    expected = np.minimum(8.0 * times, 20.0)
+    np.testing.assert_allclose(plan.xy[:, 0], expected, atol=1e-6)
+    assert plan.xy.shape == (50, 2)
+
+
+def test_the_speed_rule_accelerates_from_the_egos_speed_up_to_the_limit() -> None:
+    xy, yaws = _line(200.0, 0.5)
+    output = PlanOutput(acceleration=2.0, max_speed=6.0)
+    plan = contract_plan(Poses(xy, yaws), S, S, 0.0, output, PlanarTransform())
+    times = (plan.stamps_ns - S) / 1e9
+    accelerating = times <= 3.0  # 2 m/s^2 for 3 s reaches 6 m/s
+    np.testing.assert_allclose(plan.xy[accelerating, 0], times[accelerating] ** 2, atol=1e-3)
+    np.testing.assert_allclose(plan.xy[~accelerating, 0], 9.0 + 6.0 * (times[~accelerating] - 3.0), atol=1e-3)
+
+
+def test_the_stacks_own_speeds_set_the_times_and_a_zero_speed_is_a_stop() -> None:
+    xy, yaws = _line(30.0)
+    speeds = np.full(31, 5.0)
+    speeds[10:] = 0.0  # stops at 10 m
+    plan = contract_plan(Poses(xy, yaws, speeds=speeds), S, S, 99.0, PlanOutput(), PlanarTransform())
+    times = (plan.stamps_ns - S) / 1e9
+    before = times <= 1.8  # 9 m at 5 m/s; the last metre is braked (mean speed 2.5 m/s)
+    np.testing.assert_allclose(plan.xy[before, 0], 5.0 * times[before], atol=1e-6)
+    assert plan.xy[-1, 0] == pytest.approx(10.0)
+
+
+def test_a_plan_made_after_the_sweep_is_read_from_its_own_time() -> None:
+    xy, yaws = _line(60.0)
+    made = S + 50_000_000  # a timer-driven stack planned 50 ms after the sweep
+    plan = contract_plan(Poses(xy, yaws), made, S, 10.0, PlanOutput(), PlanarTransform())
+    assert plan.stamps_ns[0] == S + STEP
+    assert plan.xy[0, 0] == pytest.approx(0.5)  # 50 ms into the plan at 10 m/s
+    assert plan.xy[9, 0] == pytest.approx(9.5)
+
+
+def test_a_plan_in_another_frame_is_moved_into_the_world() -> None:
+    xy, yaws = _line(60.0)
+    output = PlanOutput(frame_id="map", frame_origin="static", origin_pose=(100.0, -20.0, math.pi / 2))
+    transform = frame_transform(output, None, None)
+    plan = contract_plan(Poses(xy, yaws), S, S, 10.0, output, transform)
+    assert plan.xy[0] == pytest.approx([100.0, -19.0])
+    assert plan.yaws[0] == pytest.approx(math.pi / 2)
+
+
+def test_geodetic_points_round_trip_and_the_first_fix_anchors_the_frame() -> None:
+    datum = Datum(49.011, 8.4168, 112.0)
+    latitude, longitude, altitude = geodetic_of(datum, 120.0, -45.0, 1.5)
+    np.testing.assert_allclose(enu_of(datum, latitude, longitude, altitude), [120.0, -45.0, 1.5], atol=1e-6)
+    first = frame_transform(PlanOutput(frame_id="map", frame_origin="first_fix"), datum, np.array([120.0, -45.0]))
+    assert (first.x, first.y, first.yaw) == (120.0, -45.0, 0.0)
+    other = Datum(latitude, longitude, altitude)
+    anchored = frame_transform(PlanOutput(frame_id="enu", frame_origin="datum", origin_datum=other), datum, None)
+    assert (anchored.x, anchored.y) == (pytest.approx(120.0, abs=1e-6), pytest.approx(-45.0, abs=1e-6))
+
+
+def test_unusable_answers_are_refused() -> None:
+    with pytest.raises(ValueError, match="no poses"):
+        Poses(np.zeros((0, 2)), np.zeros(0))
+    with pytest.raises(ValueError, match="NaN"):
+        Poses(np.array([[0.0, math.nan]]), np.zeros(1))
+    with pytest.raises(ValueError, match="not strictly increasing"):
+        Poses(np.zeros((2, 2)), np.zeros(2), stamps_ns=np.array([5, 5]))
+    with pytest.raises(ValueError, match="no fix was sent"):
+        frame_transform(PlanOutput(frame_id="map", frame_origin="first_fix"), Datum(0.0, 0.0), None)
