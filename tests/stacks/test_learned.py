@@ -100,11 +100,11 @@ def test_training_is_reproducible_and_the_saved_weights_drive_the_stack(
 ) -> None:
     data = samples_from_scenario(synthetic_log.scenario, SMALL, keep=lambda frame: frame % 4 == 1)
     assert data.sources == ("synthetic_7@9", "synthetic_7@13", "synthetic_7@17")  # 1 s before, 5 s after
-    first, losses = train_planner(data, SMALL)
-    second, _ = train_planner(data, SMALL)
+    first, losses, _, _ = train_planner(data, SMALL)
+    second = train_planner(data, SMALL).model
     for name, tensor in first.state_dict().items():
         assert torch.equal(tensor, second.state_dict()[name]), name
-    other, _ = train_planner(data, dataclasses.replace(SMALL, training=dataclasses.replace(SMALL.training, seed=4)))
+    other = train_planner(data, dataclasses.replace(SMALL, training=dataclasses.replace(SMALL.training, seed=4))).model
     assert not torch.equal(first.state_dict()["head.0.weight"], other.state_dict()["head.0.weight"])
     assert len(losses) == 2
     assert all(np.isfinite(losses))

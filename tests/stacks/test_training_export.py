@@ -85,6 +85,7 @@ def test_the_split_never_lets_a_test_window_share_a_frame_with_training() -> Non
         if split == "train":
             assert frames <= trained_frames, start
     assert window_split("synthetic_100", 0, 60, CONFIG) == "train"
+    assert window_split("synthetic_104", 0, 60, CONFIG) == "validation"  # validates fine-tuning, never trains
     assert window_split("synthetic_lead_brake_100", 0, 60, CONFIG) == "test"  # another family: never trained
     assert window_split("av2_7fab", 0, 60, CONFIG) == "test"
     assert source_window("kitti_tracking_0000@20/adversarial") == ("kitti_tracking_0000", 20)
@@ -103,7 +104,8 @@ def test_robust_training_fine_tunes_on_logs_plus_found_scenarios_reproducibly(su
     export_training(suite, tmp_path / "data", CONFIG)
     adversarial = training_shards(tmp_path / "data")
     assert [part.sources[0].split("@")[0] for part in adversarial] == ["synthetic_100"]  # the held-out one stays out
-    tiny = {"synthetic_seeds": (5,), "synthetic_duration": 6.2, "finetune_epochs": 1, "adversarial_repeat": 2}
+    tiny = {"synthetic_seeds": (5,), "synthetic_duration": 6.2, "finetune_epochs": 1, "finetune_repeat": 2,
+            "validation_seeds": (6,)}  # fmt: skip
     small = dataclasses.replace(CONFIG, training=dataclasses.replace(CONFIG.training, **tiny))
     first = train_il(small, None, tmp_path / "robust_a.pt", scheme="robust", adversarial=adversarial)
     second = train_il(small, None, tmp_path / "robust_b.pt", scheme="robust", adversarial=adversarial)
@@ -116,6 +118,8 @@ def test_robust_training_fine_tunes_on_logs_plus_found_scenarios_reproducibly(su
     assert all(torch.equal(a, b) for a, b in pairs)  # the same weights, bit for bit
     assert metadata["scheme"] == "robust"
     assert metadata["adversarial_samples"] == adversarial[0].count
+    assert metadata["best_epoch"] == first.best_epoch == 1  # one pass: the only one to keep
+    assert len(metadata["validation_losses"]) == 2  # before fine-tuning, after the pass
     standard, _ = load_model(small)  # the packaged weights it started from
     pairs = zip(robust.state_dict().values(), standard.state_dict().values(), strict=True)
     changed = [not torch.equal(a, b) for a, b in pairs]

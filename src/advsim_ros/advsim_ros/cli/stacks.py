@@ -64,11 +64,13 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     train.add_argument("--no-kitti", action="store_true", help="synthetic logs only")
     train.add_argument("--params", type=Path, default=None, help="parameters (default params/stack_learned.yaml)")
     train.add_argument(
-        "--epochs", type=int, default=None, help="override training.epochs (robust: training.finetune_epochs)"
-    )
+        "--epochs", type=int, default=None,
+        help="override training.epochs (curriculum, robust: training.finetune_epochs)",
+    )  # fmt: skip
     train.add_argument(
-        "--scheme", default="standard", choices=("standard", "robust"),
-        help="standard: from scratch on the logs; robust: fine-tune on the logs plus found scenarios (--adversarial)",
+        "--scheme", default="standard", choices=("standard", "curriculum", "robust"),
+        help="standard: from scratch on the logs; curriculum: fine-tune on the logs plus their hardest train "
+        "windows by curation rate; robust: fine-tune on the logs plus found scenarios (--adversarial)",
     )  # fmt: skip
     train.add_argument(
         "--adversarial", type=Path, default=None, help="an `advsim export training` folder (its train split is used)"

@@ -221,19 +221,29 @@ def train_il_command(
     scheme: str = "standard",
     adversarial_dir: Path | None = None,
 ) -> dict[str, Any]:
-    """Train the learned planner and write its weights; returns the training report as a dict."""
+    """Train the learned planner and write its weights; returns the training report as a dict.
+
+    Curriculum training ranks windows with the curation parameters (params/curation.yaml, as campaigns do).
+    """
+    from advsim_ros.core.curation import CurationConfig, load_curation_config
     from advsim_ros.stacks.learned.config import load_learned_config
     from advsim_ros.stacks.learned.dataset import training_shards
     from advsim_ros.stacks.learned.train import train_il
+    from advsim_ros.stacks.params import default_params_file
 
+    if adversarial_dir is not None and scheme != "robust":
+        raise StackError(f"--adversarial: only --scheme robust trains on found scenarios, not {scheme}")
     config = load_learned_config(params)
     if epochs is not None:
-        field = "finetune_epochs" if scheme == "robust" else "epochs"
-        config = replace(config, training=replace(config.training, **{field: epochs}))
+        old = config.training
+        training = replace(old, epochs=epochs) if scheme == "standard" else replace(old, finetune_epochs=epochs)
+        config = replace(config, training=training)
     adversarial = training_shards(adversarial_dir) if adversarial_dir is not None else []
     if adversarial_dir is not None:
         log(f"{adversarial_dir}: {sum(part.count for part in adversarial)} adversarial samples of the train split")
-    report = train_il(config, kitti_root, out, log, scheme, adversarial)
+    curation_file = default_params_file("curation.yaml")
+    curation = load_curation_config(curation_file) if curation_file.is_file() else CurationConfig()
+    report = train_il(config, kitti_root, out, log, scheme, adversarial, curation)
     return asdict(report)
 
 

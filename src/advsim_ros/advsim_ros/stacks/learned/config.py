@@ -97,17 +97,27 @@ class TrainingConfig:
     synthetic_duration: float = 10.0  # length of each synthetic training log [s]
     mirror: bool = True  # add every sample mirrored left-right
     threads: int = 2  # torch intra-op threads (fixed, so that sums are reduced in the same order)
-    finetune_epochs: int = 10  # robust training: passes when fine-tuning on logs + adversarial samples
-    finetune_learning_rate: float = 3.0e-4  # robust training: Adam step size when fine-tuning
-    adversarial_repeat: int = 5  # robust training: each adversarial sample counts this many times per pass
+    validation_seeds: tuple[int, ...] = (104, 105)  # synthetic logs that validate fine-tuning (never trained on)
+    finetune_epochs: int = 10  # curriculum / robust: most passes when fine-tuning on logs + extra samples
+    finetune_learning_rate: float = 3.0e-4  # curriculum / robust: Adam step size when fine-tuning
+    finetune_repeat: int = 5  # curriculum / robust: each hard window or found scenario counts this many times
+    finetune_patience: int = 3  # fine-tuning stops after this many passes without a better validation loss
+    curriculum_fraction: float = 0.25  # curriculum: the hardest fraction of train windows (by curation rate)
 
     def __post_init__(self) -> None:
-        if min(self.epochs, self.batch_size, self.threads, self.finetune_epochs, self.adversarial_repeat) < 1:
+        counts = (self.epochs, self.batch_size, self.threads, self.finetune_epochs, self.finetune_repeat,
+                  self.finetune_patience)  # fmt: skip
+        if min(counts) < 1:
             raise ScenarioError(
-                "training epochs, batch_size, threads, finetune_epochs, adversarial_repeat: must be >= 1"
+                "training epochs, batch_size, threads, finetune_epochs, finetune_repeat, finetune_patience: "
+                "must be >= 1"
             )
         if not self.finetune_learning_rate > 0:
             raise ScenarioError("training finetune_learning_rate must be positive")
+        if not 0.0 < self.curriculum_fraction <= 1.0:
+            raise ScenarioError(f"training curriculum_fraction: must lie in (0, 1], got {self.curriculum_fraction}")
+        if shared := sorted(set(self.synthetic_seeds) & set(self.validation_seeds)):
+            raise ScenarioError(f"training validation_seeds: {shared} also train (synthetic_seeds)")
         if not (self.learning_rate > 0 and self.weight_decay >= 0):
             raise ScenarioError("training learning_rate must be positive and weight_decay >= 0")
         if not 0.5 <= self.synthetic_duration <= 60.0:

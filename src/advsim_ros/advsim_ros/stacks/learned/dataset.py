@@ -14,32 +14,42 @@ The split (``window_split``) is decided by the log window a scenario comes from,
 the scenario itself: a failure found on a held-out window is test data even if it was found
 against a stack that trained on other windows of the same log.
 
-- synthetic street logs of the training seeds (``training.synthetic_seeds``) train; every
-  other synthetic log (other seeds, other families) is test;
+- synthetic street logs of the training seeds (``training.synthetic_seeds``) train, those of
+  the validation seeds (``training.validation_seeds``, disjoint from them) validate: fine-tuning
+  stops early on their loss and never trains on them; every other synthetic log (other seeds,
+  other families) is test;
 - the KITTI training sequence trains on windows inside the frames training saw (decisions up
   to ``training.kitti_last_decision`` and their horizons), tests on windows wholly after them,
   and windows straddling the boundary are excluded (they would leak training targets);
 - everything else (Argoverse 2, users' bags) is test.
+
+Curriculum training (``hardest_windows``) ranks the curation windows (``core.curation``) of the
+logs standard training reads by their collision rate and keeps the hardest fraction, of the train
+split only: a window of a validation or test log, or one straddling KITTI's boundary, is never
+a candidate.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from advsim_ros.core.atomic import atomic_file, write_json_atomically
+from advsim_ros.core.curation import CurationConfig, CurationWindow, crop_scenario, curate_windows
+from advsim_ros.core.types import Scenario
 from advsim_ros.io.bag import read_scenario_bag
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
 from advsim_ros.stacks.learned.train import TrainingData, samples_from_scenario
 
-SPLITS = ("train", "test", "excluded")
+SPLITS = ("train", "validation", "test", "excluded")
 INDEX_NAME = "index.json"
 SHARD_ARRAYS = ("images", "features", "priors", "targets")
 
@@ -51,10 +61,12 @@ def source_window(scenario_id: str) -> tuple[str, int]:
 
 
 def window_split(log_id: str, first_frame: int, num_frames: int, config: LearnedStackConfig) -> str:
-    """Which split a window of a log belongs to: "train", "test" or "excluded" (see the module's docstring)."""
+    """Which split a window of a log belongs to: "train", "validation", "test" or "excluded" (module docstring)."""
     training = config.training
     if log_id in {f"synthetic_{seed}" for seed in training.synthetic_seeds}:
         return "train"
+    if log_id in {f"synthetic_{seed}" for seed in training.validation_seeds}:
+        return "validation"
     if log_id == f"kitti_tracking_{training.kitti_sequence}":
         last_seen = training.kitti_last_decision + config.num_steps  # the last frame a training target reaches
         if first_frame + num_frames - 1 <= last_seen:
@@ -132,3 +144,56 @@ def training_shards(folder: Path, split: str = "train") -> list[TrainingData]:
             f"{folder}: not a training export (expected {INDEX_NAME} of `advsim export training`)"
         ) from None
     return [load_shard(folder / shard["file"]) for shard in shards if shard["split"] == split]
+
+
+@dataclass(frozen=True)
+class HardWindow:
+    """A curation window of a training log picked by curriculum training."""
+
+    scenario: Scenario  # the whole log
+    window: CurationWindow
+
+    @property
+    def name(self) -> str:
+        """``LOG@START``, like the scenario ids of found scenarios."""
+        return f"{self.scenario.scenario_id}@{self.window.start_frame}"
+
+    def samples(self, config: LearnedStackConfig) -> TrainingData:
+        """The window's samples (its one decision: 1 s of history, 5 s of future), named ``LOG@START/hard``."""
+        cropped = crop_scenario(self.scenario, self.window)
+        return samples_from_scenario(replace(cropped, scenario_id=f"{self.name}/hard"), config)
+
+
+def hardest_windows(
+    scenarios: Sequence[Scenario], config: LearnedStackConfig, curation: CurationConfig
+) -> list[HardWindow]:
+    """The hardest ``training.curriculum_fraction`` of the train-split curation windows, hardest first.
+
+    Candidates are the curation windows of ``scenarios`` whose split is "train"; ranked by collision
+    rate (equal rates: in the order of the logs and windows), the first ceil(fraction x candidates)
+    are kept, less those with rate 0 (no curation signal: nothing makes them hard). StackError when
+    no window is a candidate or none of the kept ones has any signal.
+    """
+    span = curation.history_frames + curation.future_frames
+    candidates = []
+    for scenario in scenarios:
+        if scenario.num_frames < span:
+            continue  # shorter than one window: nothing to rank
+        log_id, first = source_window(scenario.scenario_id)
+        for window in curate_windows(scenario, curation):
+            if window_split(log_id, first + window.start_frame, span, config) == "train":
+                candidates.append(HardWindow(scenario, window))
+    if not candidates:
+        raise StackError(
+            f"curriculum training: no train-split window of {span} frames in the training logs "
+            f"({', '.join(s.scenario_id for s in scenarios) or 'none'})"
+        )
+    ranked = sorted(range(len(candidates)), key=lambda index: (-candidates[index].window.collision_rate, index))
+    count = math.ceil(config.training.curriculum_fraction * len(candidates))
+    hardest = [candidates[index] for index in ranked[:count] if candidates[index].window.collision_rate > 0.0]
+    if not hardest:
+        raise StackError(
+            f"curriculum training: none of the {len(candidates)} train-split windows has any curation signal "
+            "(no sampled SDV trajectory collides in any): nothing to rank them by"
+        )
+    return hardest

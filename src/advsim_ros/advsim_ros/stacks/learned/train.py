@@ -15,12 +15,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 from torch import nn
 
+from advsim_ros.core.curation import CurationConfig
 from advsim_ros.core.types import FloatArray, Scenario
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
@@ -92,19 +93,21 @@ def samples_from_scenario(
     return TrainingData(np.stack(images), np.stack(features), np.stack(priors), np.stack(targets), tuple(sources))
 
 
+def _synthetic_street(seed: int, duration: float) -> Scenario:
+    from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
+
+    config = SyntheticConfig(duration=duration)
+    return generate_synthetic_log(np.random.default_rng(seed), config, f"synthetic_{seed}").scenario
+
+
 def training_scenarios(
     config: LearnedStackConfig, kitti_root: Path | None
 ) -> list[tuple[Scenario, Callable[[int], bool] | None]]:
     """The logs trained on: synthetic logs from the configured seeds, and KITTI up to the last training decision."""
-    from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
-
     training = config.training
-    scenarios: list[tuple[Scenario, Callable[[int], bool] | None]] = []
-    for seed in training.synthetic_seeds:
-        log = generate_synthetic_log(
-            np.random.default_rng(seed), SyntheticConfig(duration=training.synthetic_duration), f"synthetic_{seed}"
-        )
-        scenarios.append((log.scenario, None))
+    scenarios: list[tuple[Scenario, Callable[[int], bool] | None]] = [
+        (_synthetic_street(seed, training.synthetic_duration), None) for seed in training.synthetic_seeds
+    ]
     if kitti_root is not None:
         from advsim_ros.io.kitti import load_kitti_tracking
 
@@ -113,18 +116,43 @@ def training_scenarios(
     return scenarios
 
 
+def validation_data(config: LearnedStackConfig, log: Callable[[str], None] | None = None) -> TrainingData | None:
+    """Every sample of the validation logs (``training.validation_seeds``); None when there are none."""
+    training = config.training
+    parts = []
+    for seed in training.validation_seeds:
+        part = samples_from_scenario(_synthetic_street(seed, training.synthetic_duration), config)
+        if log is not None:
+            log(f"synthetic_{seed}: {part.count} validation samples")
+        parts.append(part)
+    return TrainingData.concatenate(parts) if parts else None
+
+
 @dataclass(frozen=True)
 class TrainingReport:
     """What a training run did."""
 
     samples: int  # training samples (before mirroring)
     sources: dict[str, int]  # samples per log
-    epochs: int
-    final_loss: float  # mean smooth-L1 loss of the last epoch [m]
+    epochs: int  # passes run
+    final_loss: float  # mean smooth-L1 loss of the last pass [m]
     seconds: float  # wall time of data building and training [s]
     parameters: int  # trainable parameters
     weights: str  # where the weights were written
-    losses: tuple[float, ...] = field(default=())  # mean loss per epoch [m]
+    losses: tuple[float, ...] = field(default=())  # mean loss per pass [m]
+    scheme: str = "standard"
+    validation_losses: tuple[float, ...] = field(default=())  # fine-tuning: before it, then after each pass [m]
+    best_epoch: int | None = None  # fine-tuning: the pass whose weights were kept (lowest validation loss)
+    hard_windows: dict[str, float] = field(default_factory=dict)  # curriculum: window -> curation rate
+
+
+class Fit(NamedTuple):
+    """What train_planner returns."""
+
+    model: BevPlanner
+    losses: list[float]  # mean training loss of every pass run [m]
+    validation_losses: list[float]  # with validation: before training, then after every pass [m]
+    best_epoch: int  # the pass whose weights were kept (1-based): with validation the best one, else the last
 
 
 def _mirror(
@@ -138,16 +166,41 @@ def _mirror(
     return torch.flip(images, dims=[2]), features * sign, priors * flip_y, targets * flip_y
 
 
+def validation_loss(model: BevPlanner, data: TrainingData, batch_size: int) -> float:
+    """Mean smooth-L1 loss of the model on the samples, unmirrored [m] (no gradients, no random draws)."""
+    loss_function = nn.SmoothL1Loss(reduction="sum")
+    total = 0.0
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        for start in range(0, data.count, batch_size):
+            batch = slice(start, start + batch_size)
+            planned = model(torch.from_numpy(data.images[batch]).float(), torch.from_numpy(data.features[batch]),
+                            torch.from_numpy(data.priors[batch]))  # fmt: skip
+            total += float(loss_function(planned, torch.from_numpy(data.targets[batch])))
+    model.train(was_training)
+    return total / max(data.targets.size, 1)
+
+
 def train_planner(
     data: TrainingData,
     config: LearnedStackConfig,
     log: Callable[[str], None] | None = None,
     initial: BevPlanner | None = None,
-) -> tuple[BevPlanner, list[float]]:
-    """Fit the planner to the samples, from ``initial``'s weights when given (deterministic for given inputs)."""
+    validation: TrainingData | None = None,
+) -> Fit:
+    """Fit the planner to the samples, from ``initial``'s weights when given (deterministic for given inputs).
+
+    With ``validation``, its loss is measured before the first pass (for reference) and after every
+    pass; training stops once ``training.finetune_patience`` passes in a row did not lower it below
+    the best pass's, and the best pass's weights are kept (the earliest among equals). Measuring
+    draws nothing random, so the passes run are the same with or without it.
+    """
     training = config.training
     if config.training.mirror and not np.isclose(config.raster.y_range[0], -config.raster.y_range[1]):
         raise StackError("training mirror: needs a raster y_range symmetric about 0")
+    if validation is not None and validation.count == 0:
+        raise StackError("training validation: the validation logs gave no samples (shorter than 6 s?)")
     torch.manual_seed(training.seed)
     torch.use_deterministic_algorithms(True)
     previous_threads = torch.get_num_threads()
@@ -164,8 +217,14 @@ def train_planner(
         priors = torch.from_numpy(data.priors)
         targets = torch.from_numpy(data.targets)
         losses: list[float] = []
+        validation_losses: list[float] = []
+        best_epoch, best_state = 0, None
+        if validation is not None:
+            validation_losses.append(validation_loss(model, validation, training.batch_size))
+            if log is not None:
+                log(f"before training: validation loss {validation_losses[0]:.4f}")
         model.train()
-        for epoch in range(training.epochs):
+        for epoch in range(1, training.epochs + 1):
             order = rng.permutation(data.count)
             total, batches = 0.0, 0
             for start in range(0, data.count, training.batch_size):
@@ -181,16 +240,58 @@ def train_planner(
                 total += float(loss.detach())
                 batches += 1
             losses.append(total / max(batches, 1))
+            message = f"epoch {epoch}/{training.epochs}: loss {losses[-1]:.4f}"
+            if validation is None:
+                best_epoch = epoch
+            else:
+                validation_losses.append(validation_loss(model, validation, training.batch_size))
+                message += f", validation loss {validation_losses[-1]:.4f}"
+                if best_state is None or validation_losses[-1] < validation_losses[best_epoch]:
+                    best_epoch, best_state = epoch, _copy_state(model)
             if log is not None:
-                log(f"epoch {epoch + 1}/{training.epochs}: loss {losses[-1]:.4f}")
+                log(message)
+            if validation is not None and epoch - best_epoch >= training.finetune_patience:
+                if log is not None:
+                    log(f"early stop: no better validation loss for {training.finetune_patience} passes")
+                break
+        if best_state is not None:
+            model.load_state_dict(best_state)
+            if log is not None:
+                log(f"kept the weights of pass {best_epoch} (validation loss {validation_losses[best_epoch]:.4f})")
         model.eval()
-        return model, losses
+        return Fit(model, losses, validation_losses, best_epoch)
     finally:
         torch.set_num_threads(previous_threads)
         torch.use_deterministic_algorithms(False)
 
 
-SCHEMES = ("standard", "robust")
+def _copy_state(model: BevPlanner) -> dict[str, torch.Tensor]:
+    return {name: tensor.detach().clone() for name, tensor in model.state_dict().items()}
+
+
+SCHEMES = ("standard", "curriculum", "robust")
+
+
+def fine_tune(
+    config: LearnedStackConfig,
+    parts: Sequence[TrainingData],
+    extra: Sequence[TrainingData],
+    log: Callable[[str], None] | None = None,
+) -> tuple[LearnedStackConfig, TrainingData, Fit]:
+    """Fine-tune the configured weights on the logs' samples plus ``extra``, each repeated ``finetune_repeat`` times.
+
+    The shared path of curriculum and robust training: ``finetune_epochs`` passes at most, at
+    ``finetune_learning_rate``, early stopping on the validation logs (``validation_data``).
+    Returns the config the passes ran with, the samples and the fit.
+    """
+    from advsim_ros.stacks.learned.stack import load_model
+
+    training = config.training
+    initial, _ = load_model(config)
+    tuned = replace(config, training=replace(training, epochs=training.finetune_epochs,
+                                             learning_rate=training.finetune_learning_rate))  # fmt: skip
+    data = TrainingData.concatenate([*parts, *list(extra) * training.finetune_repeat])
+    return tuned, data, train_planner(data, tuned, log, initial, validation_data(config, log))
 
 
 def train_il(
@@ -200,60 +301,79 @@ def train_il(
     log: Callable[[str], None] | None = None,
     scheme: str = "standard",
     adversarial: Sequence[TrainingData] = (),
+    curation: CurationConfig | None = None,
 ) -> TrainingReport:
     """Build the data, train, write the weights to `out` atomically; the report says what happened.
 
-    ``standard`` trains from scratch on the logs. ``robust`` (AdvSim's robust training) fine-tunes
-    the configured weights (``planner.weights``, default the packaged ones) for
-    ``training.finetune_epochs`` at ``training.finetune_learning_rate`` on the same logs mixed with
-    the adversarial samples (``adversarial``: training-split shards of `advsim export training`),
-    each adversarial sample repeated ``training.adversarial_repeat`` times so that a few found
-    scenarios weigh against hundreds of logged frames.
+    ``standard`` trains from scratch on the logs. ``curriculum`` and ``robust`` (AdvSim's baselines,
+    Sec. 4.4) fine-tune the configured weights (``planner.weights``, default the packaged standard
+    ones) on the same logs mixed with extra samples, each repeated ``training.finetune_repeat``
+    times so that a few scenarios weigh against hundreds of logged frames (``fine_tune``): for
+    ``curriculum`` the hardest ``training.curriculum_fraction`` of the logs' train-split windows by
+    curation rate (``dataset.hardest_windows``, with ``curation``, default CurationConfig()), for
+    ``robust`` the adversarial samples (``adversarial``: train-split shards of `advsim export
+    training`).
     """
     if scheme not in SCHEMES:
         raise StackError(f"training scheme: expected one of {', '.join(SCHEMES)}, got {scheme!r}")
     if scheme == "robust" and not adversarial:
         raise StackError("robust training needs adversarial samples (`advsim export training`, split 'train')")
+    if scheme != "robust" and adversarial:
+        raise StackError(f"{scheme} training takes no adversarial samples (they are for --scheme robust)")
     start = time.perf_counter()
+    scenarios = training_scenarios(config, kitti_root)
     parts = []
-    for scenario, keep in training_scenarios(config, kitti_root):
+    for scenario, keep in scenarios:
         part = samples_from_scenario(scenario, config, keep)
         if log is not None:
             log(f"{scenario.scenario_id}: {part.count} samples")
         parts.append(part)
-    initial = None
-    if scheme == "robust":
-        from advsim_ros.stacks.learned.stack import load_model
+    hard: dict[str, float] = {}
+    if scheme == "standard":
+        data = TrainingData.concatenate(parts)
+        fit = train_planner(data, config, log)
+    else:
+        extra = list(adversarial)
+        if scheme == "curriculum":
+            from advsim_ros.stacks.learned.dataset import hardest_windows
 
-        initial, _ = load_model(config)
-        parts.extend(list(adversarial) * config.training.adversarial_repeat)
-        training = config.training
-        config = replace(config, training=replace(training, epochs=training.finetune_epochs,
-                                                  learning_rate=training.finetune_learning_rate))  # fmt: skip
-    data = TrainingData.concatenate(parts)
-    model, losses = train_planner(data, config, log, initial)
+            windows = hardest_windows([scenario for scenario, _ in scenarios], config, curation or CurationConfig())
+            hard = {window.name: window.window.collision_rate for window in windows}
+            if log is not None:
+                log("hardest train windows (curation rate): " + ", ".join(f"{k} {v:.3f}" for k, v in hard.items()))
+            extra = [window.samples(config) for window in windows]
+        config, data, fit = fine_tune(config, parts, extra, log)
+    losses = fit.losses
     sources: dict[str, int] = {}
     for source in data.sources:
         scenario_id = source.rsplit("@", 1)[0]
         sources[scenario_id] = sources.get(scenario_id, 0) + 1
+    fine_tuned = scheme != "standard"
     metadata: dict[str, Any] = {
         "samples": data.count,
         "sources": sources,
-        "epochs": config.training.epochs,
+        "epochs": len(losses),
         "seed": config.training.seed,
         "final_loss": losses[-1],
         "kitti_last_decision": config.training.kitti_last_decision if kitti_root is not None else None,
         "scheme": scheme,
         "adversarial_samples": sum(part.count for part in adversarial),
     }
-    save_weights(model, config, out, metadata)
+    if fine_tuned:
+        metadata |= {"hard_windows": hard, "validation_seeds": list(config.training.validation_seeds),
+                     "validation_losses": fit.validation_losses, "best_epoch": fit.best_epoch}  # fmt: skip
+    save_weights(fit.model, config, out, metadata)
     return TrainingReport(
         samples=data.count,
         sources=sources,
-        epochs=config.training.epochs,
+        epochs=len(losses),
         final_loss=losses[-1],
         seconds=time.perf_counter() - start,
-        parameters=sum(parameter.numel() for parameter in model.parameters()),
+        parameters=sum(parameter.numel() for parameter in fit.model.parameters()),
         weights=str(out),
         losses=tuple(losses),
+        scheme=scheme,
+        validation_losses=tuple(fit.validation_losses),
+        best_epoch=fit.best_epoch if fine_tuned else None,
+        hard_windows=hard,
     )
