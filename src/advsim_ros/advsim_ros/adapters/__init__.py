@@ -3,4 +3,5 @@
 - ``profile`` the profile file (processes, inputs, outputs, timing), validated with one-line errors
 - ``plans``    a stack's answer (timed or spatial poses, any frame) as the contract's plan
 - ``messages`` parsers of the stacks' own plan messages, builders of the pose inputs they read
+- ``timing``   which plan of a timer-driven stack answers which sweep
 """

@@ -42,7 +42,7 @@ class StackSpec:
     name: str  # log-file name and how the summary refers to it
     command: tuple[str, ...]  # executable and arguments (the launcher appends --ros-args ...)
     remappings: Mapping[str, str] = field(default_factory=dict)  # contract topic -> the stack's topic
-    remap_mode: str = "relay"  # "relay": stack_relay bridges the names; "rename": -r STACK:=CONTRACT to the command
+    remap_mode: str = "relay"  # "relay": stack_adapter bridges the names; "rename": -r STACK:=CONTRACT to the command
     params_files: tuple[Path, ...] = ()
     restart: bool = True  # start it again when it exits during the attack
     rename_node: bool = False  # reference stacks are single nodes; users' commands keep their names

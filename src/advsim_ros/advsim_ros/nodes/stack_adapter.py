@@ -10,17 +10,14 @@ differs from the contract. It never changes what the stack is told, only how it 
 - the LiDAR sweep gets the stack's sensor frame name, with an identity transform to it on /tf_static;
 - the plan, in the stack's type and frame, becomes the contract's plan (adapters.plans). A stack
   planning per sweep stamps its answer with the sweep; a stack planning on its own timer (the
-  player then steps /clock) is answered for the sweep stamped S with the plan in force at
-  S + decision_delay: the latest one made by then (header stamp, or arrival on the sim clock),
-  no older than max_plan_age, taken once the clock is answer_margin past that time (so that a plan
-  made at the decision time itself has arrived); when there is none, the first one made after it.
+  player then steps /clock) is answered with the plan in force at the sweep's decision time
+  (adapters.timing).
 
 Parameters: ``profile_file`` (the profile as the attack wrote it, JSON), ``run_id``.
 """
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 from pathlib import Path
 from typing import Any
@@ -30,25 +27,16 @@ import numpy as np
 from advsim_ros.adapters import messages as foreign
 from advsim_ros.adapters.plans import Poses, contract_plan, frame_transform
 from advsim_ros.adapters.profile import StackProfile, load_profile
+from advsim_ros.adapters.timing import PlanBook
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import path_msg
 from advsim_ros.contract.spatial import tf_message
-from advsim_ros.core.metrics import NS_PER_S
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.ros.graph_node import GraphNode, run_node
 
 NODE_NAME = "stack_adapter"
-KEPT_PLANS = 200  # the stack's recent plans remembered (timer mode)
 KEPT_ODOMETRY = 200
-
-
-@dataclasses.dataclass(frozen=True)
-class _Made:
-    """A plan the stack made: when (sim clock) and its poses."""
-
-    made_ns: int
-    poses: Poses
 
 
 class StackAdapter(GraphNode):
@@ -64,9 +52,7 @@ class StackAdapter(GraphNode):
         self.world_frame = ""
         self.speeds: dict[int, float] = {}  # odometry stamp -> ego speed
         self.first_fix_xy: np.ndarray | None = None
-        self.made: list[_Made] = []  # timer mode: the stack's plans, by time made
-        self.pending: list[int] = []  # timer mode: sweep stamps not answered yet
-        self.answered: set[int] = set()
+        self.book: PlanBook[Poses] = PlanBook(self.timing)  # timer mode: which plan answers which sweep
         self.sensor_frames: set[str] = set()
         renamed = self.profile.renamed()
         self._relay(renamed)
@@ -126,8 +112,8 @@ class StackAdapter(GraphNode):
             self.first_fix_xy = foreign.odometry_xy(odometry)
         if self.publish_pose is not None:
             self.publish_pose(foreign.pose_input(pose.type, odometry, pose.frame_id, pose.datum))
-        if self.timing.timer and stamp not in self.answered and stamp not in self.pending:
-            self.pending.append(stamp)
+        if self.timing.timer:
+            self.book.sweep(stamp)
 
     def on_sweep(self, raw: bytes) -> None:
         cloud = codec.decode(raw, names.POINTCLOUD2)
@@ -170,28 +156,12 @@ class StackAdapter(GraphNode):
             self._publish(stamp, stamp, poses)
             return
         made = self.clock_ns if self.timing.plan_stamp == "arrival" else stamp
-        index = bisect.bisect_right([m.made_ns for m in self.made], made)
-        self.made.insert(index, _Made(made, poses))
-        del self.made[: max(0, len(self.made) - KEPT_PLANS)]
+        self.book.plan(made, poses)
         self._answer_due()
 
     def _answer_due(self) -> None:
-        """Answer every pending sweep whose decision time has come, with the plan in force then."""
-        delay = round(self.timing.decision_delay * NS_PER_S)
-        oldest = round(self.timing.max_plan_age * NS_PER_S)
-        margin = round(self.timing.answer_margin * NS_PER_S)  # a plan made at the decision time is on its way
-        for sweep in list(self.pending):
-            due = sweep + delay
-            if self.clock_ns < due + margin:
-                continue
-            in_force = [m for m in self.made if due - oldest <= m.made_ns <= due]
-            later = [m for m in self.made if m.made_ns > due]
-            chosen = in_force[-1] if in_force else (later[0] if later else None)
-            if chosen is None:
-                continue  # not planned yet: the first plan made after the decision time will answer
-            self.pending.remove(sweep)
-            self.answered.add(sweep)
-            self._publish(sweep, chosen.made_ns, chosen.poses)
+        for sweep, made, poses in self.book.due(self.clock_ns):
+            self._publish(sweep, made, poses)
 
     def _publish(self, sweep_ns: int, made_ns: int, poses: Poses) -> None:
         output = self.plan_output
