@@ -36,6 +36,8 @@ def test_the_autoware_profile_renames_and_converts() -> None:
         "/sensor/lidar/points": "/sensing/lidar/concatenated/pointcloud",
         "/ego/odom": "/localization/kinematic_state",
         "/planning/trajectory": "/planning/scenario_planning/trajectory",
+        "/perception/detections": "/perception/object_recognition/detection/objects",
+        "/prediction/tracks": "/perception/object_recognition/objects",
     }
     assert profile.converts()
     assert profile.timing.timer
@@ -89,6 +91,14 @@ def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
         ("processes: [{command: a, params_files: [nowhere.yaml]}]\n", "nowhere.yaml of stack does not exist"),
         ("processes: [{command: a, ros_args: false, parameters: {x: 1}}]\n", "need ros_args: true"),
         ("processes: [{command: a}]\ninputs: {pose: {datum: {latitude: 95, longitude: 0}}}\n", "out of range"),
+        ("processes: [{command: a}]\ninputs: {lidar: {also: [/sensor/lidar/points]}}\n", "must differ"),
+        ("processes: [{command: a}]\ninputs: {lidar: {frame_id: velodyne}}\n", "give topic"),
+        ("processes: [{command: a}]\noutputs: {plan: {type: spatial_path}}\n", "name yours"),
+        (
+            "processes: [{command: a}]\noutputs: {detections: {type: marker_array, topic: /perception/detections}}\n",
+            "name yours",
+        ),
+        ("processes: [{command: a}]\noutputs: {detections: {type: boxes, topic: /d}}\n", "detections.type 'boxes'"),
         ("- a\n", "expected a mapping"),
         ("processes: [{command: 'a}]\n", "not valid YAML"),
     ],

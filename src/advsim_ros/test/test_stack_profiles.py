@@ -53,6 +53,7 @@ def _autoware_profile(folder: Path) -> Path:
     """The shipped Autoware profile with the test stack as its process."""
     profile = yaml.safe_load((PROFILES / "autoware.yaml").read_text())
     profile["processes"] = [{"name": "autoware", "command": f"$ADVSIM_PYTHON {FOREIGN_STACK} autoware"}]
+    profile["inputs"]["lidar"]["also"] = ["/sensing/lidar/top/pointcloud"]  # per-sensor beside concatenated
     path = folder / "autoware.yaml"
     path.write_text(yaml.safe_dump(profile))
     return path
@@ -96,7 +97,7 @@ def test_a_gnss_localised_timer_driven_stack_with_a_spatial_path_is_attacked_thr
     assert all(score["l2_human_3s"] < 2.0 for score in scores)
     log = (tmp_path / "attack" / "run" / "logs" / "stack_adapter.log").read_text()
     assert "pose: /ego/odom -> /fix (sensor_msgs/msg/NavSatFix)" in log
-    assert "plan: /gnss_planner/path (spatial_path, frame map, timer" in log
+    assert "/planning/trajectory <- /gnss_planner/path (nav_msgs/msg/Path, timer" in log
     assert not summary["flaky"]
     share = _repeat_share(tmp_path / "attack" / "adversarial", tmp_path / "replay", profile, runs=10)
     assert share >= 0.9, f"the same query gave the same score in {share:.0%} of repeats"
@@ -111,8 +112,14 @@ def test_a_stack_speaking_autoware_topics_and_types_is_attacked_through_the_ship
     assert {score["status"] for score in scores} == {"ok"}
     assert all(score["l2_human_3s"] < 2.0 for score in scores)
     log = (tmp_path / "attack" / "run" / "logs" / "stack_adapter.log").read_text()
-    assert "plan: /planning/scenario_planning/trajectory (autoware_trajectory, frame map, timer" in log
+    assert "/planning/trajectory <- /planning/scenario_planning/trajectory (autoware_planning_msgs" in log
     assert "relaying /sensor/lidar/points -> /sensing/lidar/concatenated/pointcloud" in log
+    assert "/perception/detections <- /perception/object_recognition/detection/objects" in log
+    stack_log = (tmp_path / "attack" / "run" / "logs" / "autoware.log").read_text()
+    assert "per-sensor sweep received" in stack_log
+    # Autoware objects reach the scorer as the contract's detections and predictions
+    assert all(score["detection_ap"] is not None for score in scores)
+    assert all(score["prediction_l2_3s"] is not None for score in scores)
     reproduction = summary["reproductions"][0]
     assert reproduction["reproduced"]
 

@@ -11,24 +11,39 @@ from typing import Any
 
 import numpy as np
 
-from advsim_ros.adapters.plans import Poses, geodetic_of, yaw_of_quaternion
+from advsim_ros.adapters.plans import PlanarTransform, Poses, geodetic_of, yaw_of_quaternion
 from advsim_ros.adapters.profile import Datum
 from advsim_ros.contract import names
 from advsim_ros.contract.codec import NS_PER_S, header_msg, message, stamp_ns
 from advsim_ros.contract.spatial import odometry_pose
+from advsim_ros.contract.tracks import TrackRecord, track_array_from_msg
+from advsim_ros.core.types import ActorClass
 
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
 NAV_SAT_STATUS = "sensor_msgs/msg/NavSatStatus"
-AUTOWARE_TRAJECTORY = "autoware_planning_msgs/msg/Trajectory"
 
 PLAN_MSGTYPES = {
     "path": names.PATH,
     "spatial_path": names.PATH,
-    "autoware_trajectory": AUTOWARE_TRAJECTORY,
+    "autoware_trajectory": names.AUTOWARE_TRAJECTORY,
     "pose_array": POSE_ARRAY,
 }
+DETECTION_MSGTYPES = {
+    "actor_tracks": names.ACTOR_TRACK_ARRAY,
+    "autoware_detected_objects": names.AUTOWARE_DETECTED_OBJECTS,
+    "autoware_tracked_objects": names.AUTOWARE_TRACKED_OBJECTS,
+    "marker_array": names.MARKER_ARRAY,
+}
+PREDICTION_MSGTYPES = {
+    "actor_tracks": names.ACTOR_TRACK_ARRAY,
+    "autoware_predicted_objects": names.AUTOWARE_PREDICTED_OBJECTS,
+}
+# Autoware's ObjectClassification labels -> the project's classes (unknown, animal, hazard, ... -> other)
+AUTOWARE_CLASSES = {1: ActorClass.VEHICLE, 2: ActorClass.VEHICLE, 3: ActorClass.VEHICLE, 4: ActorClass.VEHICLE,
+                    5: ActorClass.CYCLIST, 6: ActorClass.CYCLIST, 7: ActorClass.PEDESTRIAN}  # fmt: skip
+MARKER_CUBE, MARKER_ADD = 1, 0  # visualization_msgs/Marker type CUBE, action ADD
 POSE_MSGTYPES = {
     "odometry": names.ODOMETRY,
     "pose_stamped": names.POSE_STAMPED,
@@ -113,3 +128,137 @@ def odometry_xy(odometry: Any) -> np.ndarray:
     """The ego's position in the odometry's frame [m]."""
     matrix = odometry_pose(odometry, "odometry")
     return np.array(matrix[:2, 3], dtype=np.float64)
+
+
+def _box(
+    actor_id: str, actor_class: ActorClass, confidence: float, size: Any, stamps_ns: Any, poses: list[Any]
+) -> TrackRecord:
+    """A track of boxes at the poses (geometry_msgs/Pose), one per stamp; speeds and curvatures unknown (0)."""
+    values = np.array(
+        [[p.position.x, p.position.y, p.position.z, *(getattr(p.orientation, axis) for axis in "xyzw")] for p in poses],
+        dtype=np.float64,
+    ).reshape(-1, 7)
+    zeros = np.zeros(values.shape[0])
+    return TrackRecord(
+        actor_id=actor_id,
+        actor_class=actor_class,
+        size=np.array([size.x, size.y, size.z], dtype=np.float64),
+        confidence=float(confidence),
+        stamps_ns=np.asarray(stamps_ns, dtype=np.int64),
+        xyz=values[:, :3],
+        yaw=yaw_of_quaternion(values[:, 3], values[:, 4], values[:, 5], values[:, 6]),
+        velocity=zeros,
+        curvature=zeros,
+        acceleration=zeros,
+    )
+
+
+def _autoware_class(classifications: Any) -> ActorClass:
+    if not len(classifications):
+        return ActorClass.OTHER
+    best = max(classifications, key=lambda item: float(item.probability))
+    return AUTOWARE_CLASSES.get(int(best.label), ActorClass.OTHER)
+
+
+def _uuid(value: Any, index: int) -> str:
+    digits = bytes(np.asarray(value.uuid, dtype=np.uint8)).hex() if value is not None else ""
+    return digits if digits.strip("0") else f"object_{index}"
+
+
+def header_of(msg: Any) -> tuple[int, str] | None:
+    """(stamp [ns], frame) of an answer: its header's, a MarkerArray's first marker's; None for an empty one."""
+    if hasattr(msg, "header"):
+        return stamp_ns(msg.header.stamp), str(msg.header.frame_id)
+    markers = list(getattr(msg, "markers", []))
+    return (stamp_ns(markers[0].header.stamp), str(markers[0].header.frame_id)) if markers else None
+
+
+def detection_tracks(kind: str, msg: Any) -> list[TrackRecord]:
+    """The boxes of a stack's detections of profile type ``kind``, one state each at the message's stamp."""
+    if kind == "actor_tracks":
+        return list(track_array_from_msg(msg).tracks)
+    if kind == "marker_array":  # CUBE markers: the namespace names the class when it is one of the project's
+        classes = {c.value for c in ActorClass}
+        return [
+            _box(
+                f"{m.ns}/{m.id}",
+                ActorClass(m.ns) if m.ns in classes else ActorClass.VEHICLE,
+                1.0,
+                m.scale,
+                [stamp_ns(m.header.stamp)],
+                [m.pose],
+            )
+            for m in msg.markers
+            if int(m.type) == MARKER_CUBE and int(m.action) == MARKER_ADD
+        ]
+    stamp = [stamp_ns(msg.header.stamp)]
+    if kind in ("autoware_detected_objects", "autoware_tracked_objects"):
+        return [
+            _box(
+                _uuid(getattr(item, "object_id", None), index),
+                _autoware_class(item.classification),
+                float(item.existence_probability),
+                item.shape.dimensions,
+                stamp,
+                [item.kinematics.pose_with_covariance.pose],
+            )
+            for index, item in enumerate(msg.objects)
+        ]
+    raise ValueError(f"unknown detections type {kind!r}")
+
+
+def prediction_tracks(kind: str, msg: Any) -> list[TrackRecord]:
+    """The predicted tracks of a stack's predictions of profile type ``kind`` (each its own stamps).
+
+    Autoware objects carry several paths with confidences: the most confident one is the prediction.
+    """
+    if kind == "actor_tracks":
+        return list(track_array_from_msg(msg).tracks)
+    if kind != "autoware_predicted_objects":
+        raise ValueError(f"unknown predictions type {kind!r}")
+    start = stamp_ns(msg.header.stamp)
+    tracks = []
+    for index, item in enumerate(msg.objects):
+        paths = [path for path in item.kinematics.predicted_paths if len(path.path)]
+        if not paths:
+            continue
+        best = max(paths, key=lambda path: float(path.confidence))
+        step = int(best.time_step.sec) * NS_PER_S + int(best.time_step.nanosec)
+        if step <= 0:
+            continue  # a path without times cannot be compared with the future
+        stamps = start + step * np.arange(len(best.path), dtype=np.int64)
+        tracks.append(
+            _box(
+                _uuid(item.object_id, index),
+                _autoware_class(item.classification),
+                float(item.existence_probability),
+                item.shape.dimensions,
+                stamps,
+                list(best.path),
+            )
+        )
+    return tracks
+
+
+def moved(track: TrackRecord, transform: PlanarTransform) -> TrackRecord:
+    """The track in the world frame (its boxes in the frame world_T_frame = transform)."""
+    xy, yaw = transform.apply(track.xyz[:, :2], track.yaw)
+    xyz = np.column_stack([xy, track.xyz[:, 2]])
+    return TrackRecord(
+        track.actor_id, track.actor_class, track.size, track.confidence, track.stamps_ns, xyz,
+        np.arctan2(np.sin(yaw), np.cos(yaw)), track.velocity, track.curvature, track.acceleration,
+    )  # fmt: skip
+
+
+def on_grid(track: TrackRecord, stamps_ns: Any) -> TrackRecord:
+    """The track's positions and headings at these stamps (held before its first and after its last)."""
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    times = (track.stamps_ns - track.stamps_ns[0]).astype(np.float64)
+    wanted = (stamps - track.stamps_ns[0]).astype(np.float64)
+    xyz = np.column_stack([np.interp(wanted, times, track.xyz[:, axis]) for axis in range(3)])
+    yaw = np.interp(wanted, times, np.unwrap(track.yaw))
+    zeros = np.zeros(stamps.shape[0])
+    return TrackRecord(
+        track.actor_id, track.actor_class, track.size, track.confidence, stamps, xyz,
+        np.arctan2(np.sin(yaw), np.cos(yaw)), zeros, zeros, zeros,
+    )  # fmt: skip

@@ -40,12 +40,17 @@ from advsim_ros.core.types import ScenarioError
 
 SCHEMA_VERSION = 1
 PLAN_TYPES = ("path", "spatial_path", "autoware_trajectory", "pose_array")
+DETECTION_TYPES = ("actor_tracks", "autoware_detected_objects", "autoware_tracked_objects", "marker_array")
+PREDICTION_TYPES = ("actor_tracks", "autoware_predicted_objects")
 POSE_TYPES = ("odometry", "pose_stamped", "pose_with_covariance_stamped", "navsatfix")
 TIMING_MODES = ("per_sweep", "timer")
 PLAN_STAMPS = ("header", "arrival")
 FRAME_ORIGINS = ("world", "static", "first_fix", "datum")
 # Contract inputs a profile may give other names (LiDAR and pose have sections of their own)
 RENAMEABLE_INPUTS = tuple(spec.name for spec in topics.STACK_INPUTS if spec not in (topics.LIDAR, topics.ODOM))
+
+
+_CONTRACT_OBJECTS = {"detections": topics.DETECTIONS.name, "predictions": topics.PREDICTIONS.name}
 
 
 class ProfileError(ScenarioError):
@@ -137,9 +142,15 @@ class TimingProfile:
 class LidarInput:
     topic: str = topics.LIDAR.name  # where the stack reads the sweeps
     frame_id: str = ""  # the stack's name for the sensor frame ("": the bag's)
+    also: tuple[str, ...] = ()  # more topics the same sweep goes to (a stack with per-sensor and concatenated inputs)
 
     def __post_init__(self) -> None:
-        _topic_name(self.topic, "topic")
+        for index, topic in enumerate((self.topic, *self.also)):
+            _topic_name(topic, "topic" if index == 0 else f"also[{index - 1}]")
+        if len({self.topic, *self.also}) != 1 + len(self.also) or topics.LIDAR.name in self.also:
+            raise ScenarioError(f"also: the LiDAR topics must differ from each other and from {topics.LIDAR.name}")
+        if self.frame_id and self.topic == topics.LIDAR.name:
+            raise ScenarioError("frame_id: sweeps with the stack's frame name go to a topic of its own; give topic")
 
 
 @dataclass(frozen=True)
@@ -208,14 +219,31 @@ class PlanOutput:
 
 
 @dataclass(frozen=True)
-class OutputsProfile:
-    plan: PlanOutput = field(default_factory=PlanOutput)
-    detections: str = topics.DETECTIONS.name  # advsim_msgs/ActorTrackArray, relayed when renamed
-    predictions: str = topics.PREDICTIONS.name
+class ObjectsOutput:
+    """Detections or predictions the stack publishes, for the scorer's AP and prediction L2 (optional).
+
+    Boxes in the plan's frame (its ``frame_id``) are moved into the world with the plan's transform;
+    any other header frame is taken as the world frame.
+    """
+
+    topic: str  # where the stack publishes them
+    type: str = "actor_tracks"  # advsim_msgs/ActorTrackArray, or an Autoware / MarkerArray type (see *_TYPES)
 
     def __post_init__(self) -> None:
-        _topic_name(self.detections, "detections")
-        _topic_name(self.predictions, "predictions")
+        _topic_name(self.topic, "topic")
+
+
+@dataclass(frozen=True)
+class OutputsProfile:
+    plan: PlanOutput = field(default_factory=PlanOutput)
+    detections: ObjectsOutput = field(default_factory=lambda: ObjectsOutput(topics.DETECTIONS.name))
+    predictions: ObjectsOutput = field(default_factory=lambda: ObjectsOutput(topics.PREDICTIONS.name))
+
+    def __post_init__(self) -> None:
+        if self.detections.type not in DETECTION_TYPES:
+            raise ScenarioError(f"detections.type {self.detections.type!r}: one of {', '.join(DETECTION_TYPES)}")
+        if self.predictions.type not in PREDICTION_TYPES:
+            raise ScenarioError(f"predictions.type {self.predictions.type!r}: one of {', '.join(PREDICTION_TYPES)}")
 
 
 @dataclass(frozen=True)
@@ -242,6 +270,23 @@ class StackProfile:
             raise ScenarioError(f"processes: names must differ (got {names}); give each a name")
         if self.outputs.plan.frame_origin == "first_fix" and self.inputs.pose.type != "navsatfix":
             raise ScenarioError("outputs.plan.frame_origin first_fix needs inputs.pose.type navsatfix")
+        # the adapter publishes converted answers under the contract's name: the stack's must differ
+        plan = self.outputs.plan
+        if self.plan_converted() and plan.topic == topics.PLAN.name:
+            raise ScenarioError(f"outputs.plan.topic: a converted plan is published on {topics.PLAN.name}; name yours")
+        for key, output in (("detections", self.outputs.detections), ("predictions", self.outputs.predictions)):
+            if output.type != "actor_tracks" and output.topic == _CONTRACT_OBJECTS[key]:
+                raise ScenarioError(f"outputs.{key}.topic: converted {key} go to the contract's topic; name yours")
+
+    def plan_converted(self) -> bool:
+        """Whether the plan is converted (type, frame or timing), not just relayed."""
+        plan = self.outputs.plan
+        return plan.type != "path" or plan.frame_origin != "world" or self.timing.timer
+
+    def objects_converted(self, output: ObjectsOutput, contract: str) -> bool:
+        """Whether detections or predictions are converted: another type, or restamped for a timer-driven
+        stack (which publishes them under a name of its own; under the contract's they are not awaited)."""
+        return output.type != "actor_tracks" or (self.timing.timer and output.topic != contract)
 
     def params_paths(self, process: ProcessProfile) -> tuple[Path, ...]:
         return tuple((Path(self.folder) / item).resolve() for item in process.params_files)
@@ -253,21 +298,21 @@ class StackProfile:
             topics.ODOM.name: self.inputs.pose.topic,
             **self.inputs.topics,
             topics.PLAN.name: self.outputs.plan.topic,
-            topics.DETECTIONS.name: self.outputs.detections,
-            topics.PREDICTIONS.name: self.outputs.predictions,
+            topics.DETECTIONS.name: self.outputs.detections.topic,
+            topics.PREDICTIONS.name: self.outputs.predictions.topic,
         }
         return {contract: theirs for contract, theirs in names.items() if contract != theirs}
 
     def converts(self) -> bool:
         """Whether anything beyond renaming is needed (types, frames, timing): the adapter node's work."""
-        plan = self.outputs.plan
         return (
-            self.timing.timer
-            or plan.type != "path"
-            or plan.frame_origin != "world"
+            self.plan_converted()
+            or self.objects_converted(self.outputs.detections, topics.DETECTIONS.name)
+            or self.objects_converted(self.outputs.predictions, topics.PREDICTIONS.name)
             or self.inputs.pose.type != "odometry"
             or bool(self.inputs.pose.frame_id)
             or bool(self.inputs.lidar.frame_id)
+            or bool(self.inputs.lidar.also)
         )
 
     def adapted(self) -> bool:

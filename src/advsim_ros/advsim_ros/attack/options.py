@@ -91,9 +91,9 @@ class StackSpec:
             elif contract == topics.PLAN.name:
                 outputs["plan"] = {"topic": theirs}
             elif contract == topics.DETECTIONS.name:
-                outputs["detections"] = theirs
+                outputs["detections"] = {"topic": theirs}
             elif contract == topics.PREDICTIONS.name:
-                outputs["predictions"] = theirs
+                outputs["predictions"] = {"topic": theirs}
             else:
                 inputs["topics"][contract] = theirs
         mapping = {"name": self.name, "processes": [{"command": shlex.join(self.command)}], "inputs": inputs}

@@ -8,6 +8,8 @@ differs from the contract. It never changes what the stack is told, only how it 
 - the pose is re-published in the stack's type (Odometry in another frame, PoseStamped,
   PoseWithCovarianceStamped, NavSatFix from the profile's datum) from the contract's odometry;
 - the LiDAR sweep gets the stack's sensor frame name, with an identity transform to it on /tf_static;
+- detections and predictions in the stack's types (Autoware objects, MarkerArray cubes) become
+  the contract's ActorTrackArray, in the world frame, predictions on one time base from the sweep;
 - the plan, in the stack's type and frame, becomes the contract's plan (adapters.plans). A stack
   planning per sweep stamps its answer with the sweep; a stack planning on its own timer (the
   player then steps /clock) is answered with the plan in force at the sweep's decision time
@@ -19,19 +21,22 @@ Parameters: ``profile_file`` (the profile as the attack wrote it, JSON), ``run_i
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from advsim_ros.adapters import messages as foreign
-from advsim_ros.adapters.plans import Poses, contract_plan, frame_transform
+from advsim_ros.adapters.plans import contract_plan, frame_transform
 from advsim_ros.adapters.profile import StackProfile, load_profile
 from advsim_ros.adapters.timing import PlanBook
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import path_msg
 from advsim_ros.contract.spatial import tf_message
+from advsim_ros.contract.tracks import track_array_msg
+from advsim_ros.core.metrics import NS_PER_S
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.ros.graph_node import GraphNode, run_node
 
@@ -52,22 +57,28 @@ class StackAdapter(GraphNode):
         self.world_frame = ""
         self.speeds: dict[int, float] = {}  # odometry stamp -> ego speed
         self.first_fix_xy: np.ndarray | None = None
-        self.book: PlanBook[Poses] = PlanBook(self.timing)  # timer mode: which plan answers which sweep
+        self.books: dict[str, PlanBook[Any]] = {}  # by contract answer topic: which answer goes with which sweep
+        self.answer_publishers: dict[str, Callable[[Any], None]] = {}
         self.sensor_frames: set[str] = set()
         renamed = self.profile.renamed()
         self._relay(renamed)
         self._adapt_inputs(renamed)
-        self._adapt_plan()
+        self._adapt_answers()
 
     # ------------------------------------------------------------------ relays and inputs
 
     def _relay(self, renamed: dict[str, str]) -> None:
         """Topics of the contract's types the stack only calls otherwise: relayed byte for byte."""
         converted = {topics.ODOM.name}
-        if self.profile.inputs.lidar.frame_id:
+        if self.profile.inputs.lidar.frame_id or self.profile.inputs.lidar.also:
             converted.add(topics.LIDAR.name)
-        if self._plan_converted():
+        outputs = self.profile.outputs
+        if self.profile.plan_converted():
             converted.add(topics.PLAN.name)
+        if self.profile.objects_converted(outputs.detections, topics.DETECTIONS.name):
+            converted.add(topics.DETECTIONS.name)
+        if self.profile.objects_converted(outputs.predictions, topics.PREDICTIONS.name):
+            converted.add(topics.PREDICTIONS.name)
         for contract_name, stack_name in renamed.items():
             if contract_name in converted:
                 continue
@@ -87,13 +98,15 @@ class StackAdapter(GraphNode):
         self.subscribe(topics.ODOM, self.on_odometry, raw=True)  # also the ego's speed and the frames' stamps
         self.subscribe(topics.CLOCK, self.on_clock, raw=True)
         lidar = self.profile.inputs.lidar
-        if lidar.frame_id:
-            self.publish_sweep = self.publisher(dataclasses.replace(topics.LIDAR, name=lidar.topic))
+        if lidar.frame_id or lidar.also:
+            targets = [topic for topic in (lidar.topic, *lidar.also) if topic != topics.LIDAR.name]
+            self.sweep_publishers = [self.publisher(dataclasses.replace(topics.LIDAR, name=t)) for t in targets]
             tf_static_name = renamed.get(topics.TF_STATIC.name, topics.TF_STATIC.name)
             self.tf_static_spec = dataclasses.replace(topics.TF_STATIC, name=tf_static_name)
             self.tf_static_publishers: list[Any] = []  # latched: kept alive
             self.subscribe(topics.LIDAR, self.on_sweep, raw=True)
-            self.get_logger().info(f"LiDAR: {topics.LIDAR.name} -> {lidar.topic} in frame {lidar.frame_id}")
+            frame = f" in frame {lidar.frame_id}" if lidar.frame_id else ""
+            self.get_logger().info(f"LiDAR: {topics.LIDAR.name} -> {', '.join(targets)}{frame}")
 
     def on_clock(self, raw: bytes) -> None:
         self.clock_ns = codec.stamp_ns(codec.decode(raw, names.CLOCK).clock)
@@ -112,68 +125,99 @@ class StackAdapter(GraphNode):
             self.first_fix_xy = foreign.odometry_xy(odometry)
         if self.publish_pose is not None:
             self.publish_pose(foreign.pose_input(pose.type, odometry, pose.frame_id, pose.datum))
-        if self.timing.timer:
-            self.book.sweep(stamp)
+        for book in self.books.values():
+            book.sweep(stamp)
 
     def on_sweep(self, raw: bytes) -> None:
-        cloud = codec.decode(raw, names.POINTCLOUD2)
         frame = self.profile.inputs.lidar.frame_id
-        if cloud.header.frame_id not in self.sensor_frames:  # the stack's frame is where the sweep's is
-            self.sensor_frames.add(cloud.header.frame_id)
-            transform = tf_message(codec.stamp_ns(cloud.header.stamp), cloud.header.frame_id, frame, np.eye(4))
-            self.tf_static_publishers.append(self.latch(self.tf_static_spec, transform))
-        cloud = dataclasses.replace(cloud, header=codec.header_msg(codec.stamp_ns(cloud.header.stamp), frame))
-        self.publish_sweep(codec.encode(cloud))
+        if frame:
+            cloud = codec.decode(raw, names.POINTCLOUD2)
+            if cloud.header.frame_id not in self.sensor_frames:  # the stack's frame is where the sweep's is
+                self.sensor_frames.add(cloud.header.frame_id)
+                transform = tf_message(codec.stamp_ns(cloud.header.stamp), cloud.header.frame_id, frame, np.eye(4))
+                self.tf_static_publishers.append(self.latch(self.tf_static_spec, transform))
+            raw = codec.encode(
+                dataclasses.replace(cloud, header=codec.header_msg(codec.stamp_ns(cloud.header.stamp), frame))
+            )
+        for publish in self.sweep_publishers:
+            publish(raw)
 
-    # ------------------------------------------------------------------ the plan
+    # ------------------------------------------------------------------ the answers
 
-    def _adapt_plan(self) -> None:
-        if not self._plan_converted():
-            return  # relayed as it is when renamed
-        output = self.plan_output
-        theirs = topics.TopicSpec(output.topic, foreign.PLAN_MSGTYPES[output.type], topics.PLAN.offered)
-        self.publish_plan = self.publisher(topics.PLAN)
-        self.subscribe(theirs, self.on_plan, raw=True)
+    def _adapt_answers(self) -> None:
+        """Subscribe to every answer the profile converts; each becomes its contract topic's message."""
+        outputs = self.profile.outputs
+        answers = (
+            (topics.PLAN, outputs.plan.topic, foreign.PLAN_MSGTYPES[outputs.plan.type], self.profile.plan_converted()),
+            (topics.DETECTIONS, outputs.detections.topic, foreign.DETECTION_MSGTYPES[outputs.detections.type],
+             self.profile.objects_converted(outputs.detections, topics.DETECTIONS.name)),
+            (topics.PREDICTIONS, outputs.predictions.topic, foreign.PREDICTION_MSGTYPES[outputs.predictions.type],
+             self.profile.objects_converted(outputs.predictions, topics.PREDICTIONS.name)),
+        )  # fmt: skip
         mode = f"timer (decision delay {self.timing.decision_delay} s)" if self.timing.timer else "per sweep"
-        self.get_logger().info(f"plan: {output.topic} ({output.type}, frame {output.frame_id or 'world'}, {mode})")
+        for contract, topic, msgtype, converted in answers:
+            if not converted:
+                continue  # relayed as it is when renamed
+            if self.timing.timer:
+                self.books[contract.name] = PlanBook(self.timing)
+            self.answer_publishers[contract.name] = self.publisher(contract)
+            theirs = topics.TopicSpec(topic, msgtype, contract.offered)
+            self.subscribe(theirs, lambda raw, c=contract, t=msgtype: self.on_answer(c, t, raw), raw=True)
+            self.get_logger().info(f"{contract.name} <- {topic} ({msgtype}, {mode})")
 
-    def _plan_converted(self) -> bool:
-        return self.plan_output.type != "path" or self.plan_output.frame_origin != "world" or self.timing.timer
-
-    def on_plan(self, raw: bytes) -> None:
-        output = self.plan_output
+    def on_answer(self, contract: topics.TopicSpec, msgtype: str, raw: bytes) -> None:
+        outputs = self.profile.outputs
         try:
-            msg = codec.decode(raw, foreign.PLAN_MSGTYPES[output.type])
-            frame = msg.header.frame_id
-            if output.frame_id and frame and frame != output.frame_id:
-                raise ContractError(f"the plan is in frame {frame!r}, the profile says {output.frame_id!r}")
-            poses = foreign.plan_poses(output.type, msg)
+            msg = codec.decode(raw, msgtype)
+            stamp, frame = foreign.header_of(msg) or (self.clock_ns, "")  # an empty MarkerArray: now
+            if contract is topics.PLAN:
+                if outputs.plan.frame_id and frame and frame != outputs.plan.frame_id:
+                    raise ContractError(f"the plan is in frame {frame!r}, the profile says {outputs.plan.frame_id!r}")
+                answer: Any = foreign.plan_poses(outputs.plan.type, msg)
+            elif contract is topics.DETECTIONS:
+                answer = (frame, foreign.detection_tracks(outputs.detections.type, msg))
+            else:
+                answer = (frame, foreign.prediction_tracks(outputs.predictions.type, msg))
         except (ScenarioError, ValueError) as error:
-            self.get_logger().error(f"unusable plan on {output.topic}: {error}")
+            self.get_logger().error(f"unusable answer for {contract.name}: {error}")
             return
-        stamp = codec.stamp_ns(msg.header.stamp)
         if not self.timing.timer:
-            self._publish(stamp, stamp, poses)
+            self._publish(contract, stamp, stamp, answer)
             return
         made = self.clock_ns if self.timing.plan_stamp == "arrival" else stamp
-        self.book.plan(made, poses)
+        self.books[contract.name].plan(made, answer)
         self._answer_due()
 
     def _answer_due(self) -> None:
-        for sweep, made, poses in self.book.due(self.clock_ns):
-            self._publish(sweep, made, poses)
+        for name, book in self.books.items():
+            for sweep, made, answer in book.due(self.clock_ns):
+                self._publish(topics.stack_topic(name), sweep, made, answer)
 
-    def _publish(self, sweep_ns: int, made_ns: int, poses: Poses) -> None:
-        output = self.plan_output
+    def _publish(self, contract: topics.TopicSpec, sweep_ns: int, made_ns: int, answer: Any) -> None:
+        """The contract's message for the sweep stamped sweep_ns from an answer the stack made at made_ns."""
+        plan_output = self.profile.outputs.plan
         try:
-            transform = frame_transform(output, self.profile.inputs.pose.datum, self.first_fix_xy)
+            transform = frame_transform(plan_output, self.profile.inputs.pose.datum, self.first_fix_xy)
         except ScenarioError as error:
-            self.get_logger().error(f"plan for sweep {sweep_ns}: {error}")
+            self.get_logger().error(f"{contract.name} for sweep {sweep_ns}: {error}")
             return
-        known = [s for s in self.speeds if s <= made_ns]
-        speed = self.speeds[max(known)] if known else 0.0
-        plan = contract_plan(poses, made_ns, sweep_ns, speed, output, transform)
-        self.publish_plan(path_msg(plan, sweep_ns, self.world_frame or "world"))
+        world = self.world_frame or "world"
+        if contract is topics.PLAN:
+            known = [s for s in self.speeds if s <= made_ns]
+            speed = self.speeds[max(known)] if known else 0.0
+            plan = contract_plan(answer, made_ns, sweep_ns, speed, plan_output, transform)
+            self.answer_publishers[contract.name](path_msg(plan, sweep_ns, world))
+            return
+        frame, tracks = answer
+        in_plan_frame = bool(plan_output.frame_id) and frame == plan_output.frame_id  # else: the world frame
+        tracks = [foreign.moved(track, transform) for track in tracks] if in_plan_frame else tracks
+        if contract is topics.PREDICTIONS:  # one time base for all, from the sweep on (the scorer needs it)
+            step_ns = round(plan_output.step * NS_PER_S)
+            grid = sweep_ns + step_ns * np.arange(plan_output.num_steps + 1, dtype=np.int64)
+            tracks = [foreign.on_grid(track, grid) for track in tracks]
+        else:
+            tracks = [foreign.on_grid(track, [sweep_ns]) for track in tracks]
+        self.answer_publishers[contract.name](track_array_msg(tracks, sweep_ns, world))
 
 
 def main() -> None:

@@ -9,7 +9,8 @@ and stamp their answer with that clock, not with the sweep:
   /gnss_planner/path.
 - ``autoware``: reads /sensing/lidar/concatenated/pointcloud and /localization/kinematic_state
   (nav_msgs/Odometry in `map`) and publishes autoware_planning_msgs/Trajectory (points with speeds,
-  no times) on /planning/scenario_planning/trajectory.
+  no times) on /planning/scenario_planning/trajectory, with what blocks its corridor as
+  autoware_perception_msgs DetectedObjects and PredictedObjects (standing still) in `map`.
 
 Both slow down when LiDAR points lie in a corridor ahead, so that what the attack moves matters.
 """
@@ -48,6 +49,7 @@ class ForeignStack(Node):
         super().__init__(f"{dialect}_planner")
         self.dialect = dialect
         self.blocked = False  # something in the corridor ahead in the latest sweep
+        self.obstacle: tuple[float, float] | None = None  # its centroid in the sensor frame [m]
         self.position: tuple[float, float] | None = None  # in `map` [m]
         self.previous: tuple[float, float] | None = None
         self.yaw = 0.0
@@ -64,7 +66,14 @@ class ForeignStack(Node):
                 PointCloud2, "/sensing/lidar/concatenated/pointcloud", self.on_sweep, qos_profile_sensor_data
             )
             self.create_subscription(Odometry, "/localization/kinematic_state", self.on_state, 10)
+            self.create_subscription(PointCloud2, "/sensing/lidar/top/pointcloud", self.on_top, qos_profile_sensor_data)
+            self.top_sweeps = 0
+            from autoware_perception_msgs.msg import DetectedObjects, PredictedObjects
+
             self.publisher = self.create_publisher(Trajectory, "/planning/scenario_planning/trajectory", 10)
+            objects = "/perception/object_recognition"
+            self.detections = self.create_publisher(DetectedObjects, f"{objects}/detection/objects", 10)
+            self.predictions = self.create_publisher(PredictedObjects, f"{objects}/objects", 10)
         self.create_timer(0.1, self.on_timer)  # on the sim clock (use_sim_time from the profile)
 
     def on_sweep(self, cloud: PointCloud2) -> None:
@@ -72,6 +81,13 @@ class ForeignStack(Node):
         x, y, z = (np.asarray(points[axis], dtype=np.float64) for axis in "xyz")
         ahead = (x > 2.0) & (x < 20.0) & (np.abs(y) < 1.5) & (z > -1.2)
         self.blocked = int(np.count_nonzero(ahead)) > 30
+        self.obstacle = (float(np.mean(x[ahead])), float(np.mean(y[ahead]))) if self.blocked else None
+
+    def on_top(self, cloud: PointCloud2) -> None:
+        """The per-sensor topic, as Autoware's concatenation node reads it: counted, to show it is fed."""
+        self.top_sweeps += 1
+        if self.top_sweeps == 1:
+            self.get_logger().info(f"per-sensor sweep received in frame {cloud.header.frame_id}")
 
     def on_fix(self, fix: NavSatFix) -> None:
         if self.origin is None:
@@ -118,6 +134,43 @@ class ForeignStack(Node):
             point.longitudinal_velocity_mps = 0.0 if last and self.blocked else float(self.speed)
             trajectory.points.append(point)
         self.publisher.publish(trajectory)
+        self.publish_objects(stamp)
+
+    def publish_objects(self, stamp: object) -> None:
+        """What blocks the corridor as one car-sized object in `map`, predicted to stand still for 5 s."""
+        from autoware_perception_msgs.msg import (
+            DetectedObject,
+            DetectedObjects,
+            ObjectClassification,
+            PredictedObject,
+            PredictedObjects,
+            PredictedPath,
+        )
+
+        detected, predicted = DetectedObjects(), PredictedObjects()
+        for message in (detected, predicted):
+            message.header.stamp, message.header.frame_id = stamp, "map"
+        if self.obstacle is not None and self.position is not None:
+            ahead, left = self.obstacle
+            x0, y0 = self.position
+            pose = _pose(
+                x0 + ahead * math.cos(self.yaw) - left * math.sin(self.yaw),
+                y0 + ahead * math.sin(self.yaw) + left * math.cos(self.yaw),
+                self.yaw,
+            )
+            label = ObjectClassification(label=ObjectClassification.CAR, probability=1.0)
+            item = DetectedObject(existence_probability=0.9, classification=[label])
+            item.kinematics.pose_with_covariance.pose = pose
+            item.shape.dimensions.x, item.shape.dimensions.y, item.shape.dimensions.z = 4.5, 1.8, 1.5
+            detected.objects.append(item)
+            path = PredictedPath(path=[pose] * 11, confidence=1.0)
+            path.time_step.nanosec = 500_000_000
+            future = PredictedObject(existence_probability=0.9, classification=[label], shape=item.shape)
+            future.kinematics.initial_pose_with_covariance.pose = pose
+            future.kinematics.predicted_paths.append(path)
+            predicted.objects.append(future)
+        self.detections.publish(detected)
+        self.predictions.publish(predicted)
 
 
 def main() -> None:
