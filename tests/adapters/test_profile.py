@@ -99,6 +99,8 @@ def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
             "name yours",
         ),
         ("processes: [{command: a}]\noutputs: {detections: {type: boxes, topic: /d}}\n", "detections.type 'boxes'"),
+        ("processes: [{command: a}]\noutputs: {plan: {reliability: fast, topic: /p}}\n", "reliability 'fast'"),
+        ("processes: [{command: a}]\noutputs: {plan: {reliability: best_effort}}\n", "name yours"),
         ("- a\n", "expected a mapping"),
         ("processes: [{command: 'a}]\n", "not valid YAML"),
     ],

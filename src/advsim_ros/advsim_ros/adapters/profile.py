@@ -46,6 +46,7 @@ POSE_TYPES = ("odometry", "pose_stamped", "pose_with_covariance_stamped", "navsa
 TIMING_MODES = ("per_sweep", "timer")
 PLAN_STAMPS = ("header", "arrival")
 FRAME_ORIGINS = ("world", "static", "first_fix", "datum")
+RELIABILITIES = ("reliable", "best_effort")  # how the stack publishes an answer (the graph's own reads are reliable)
 # Contract inputs a profile may give other names (LiDAR and pose have sections of their own)
 RENAMEABLE_INPUTS = tuple(spec.name for spec in topics.STACK_INPUTS if spec not in (topics.LIDAR, topics.ODOM))
 
@@ -60,6 +61,13 @@ class ProfileError(ScenarioError):
 def _topic_name(value: str, key: str) -> None:
     if not value.startswith("/") or any(c.isspace() for c in value) or value.endswith("/"):
         raise ScenarioError(f"{key}: {value!r} is not an absolute topic name")
+
+
+def _reliability(value: str) -> None:
+    if value not in RELIABILITIES:
+        raise ScenarioError(
+            f"reliability {value!r}: one of {', '.join(RELIABILITIES)} (the QoS the stack publishes with)"
+        )
 
 
 @dataclass(frozen=True)
@@ -197,8 +205,10 @@ class PlanOutput:
     max_speed: float = 15.0  # untimed plans: speed limit of that rule [m/s]
     horizon: float = 5.0  # the contract plan's length [s]
     step: float = 0.1  # the contract plan's pose spacing [s]
+    reliability: str = "reliable"  # QoS the stack publishes with (best_effort: the adapter reads it so)
 
     def __post_init__(self) -> None:
+        _reliability(self.reliability)
         if self.type not in PLAN_TYPES:
             raise ScenarioError(f"type {self.type!r}: one of {', '.join(PLAN_TYPES)}")
         _topic_name(self.topic, "topic")
@@ -228,9 +238,11 @@ class ObjectsOutput:
 
     topic: str  # where the stack publishes them
     type: str = "actor_tracks"  # advsim_msgs/ActorTrackArray, or an Autoware / MarkerArray type (see *_TYPES)
+    reliability: str = "reliable"  # QoS the stack publishes with (best_effort: the adapter reads it so)
 
     def __post_init__(self) -> None:
         _topic_name(self.topic, "topic")
+        _reliability(self.reliability)
 
 
 @dataclass(frozen=True)
@@ -272,11 +284,16 @@ class StackProfile:
             raise ScenarioError("outputs.plan.frame_origin first_fix needs inputs.pose.type navsatfix")
         # the adapter publishes converted answers under the contract's name: the stack's must differ
         plan = self.outputs.plan
-        if self.plan_converted() and plan.topic == topics.PLAN.name:
-            raise ScenarioError(f"outputs.plan.topic: a converted plan is published on {topics.PLAN.name}; name yours")
+        if (self.plan_converted() or plan.reliability != "reliable") and plan.topic == topics.PLAN.name:
+            raise ScenarioError(
+                f"outputs.plan.topic: the adapter publishes this plan on {topics.PLAN.name}; name yours"
+            )
         for key, output in (("detections", self.outputs.detections), ("predictions", self.outputs.predictions)):
-            if output.type != "actor_tracks" and output.topic == _CONTRACT_OBJECTS[key]:
-                raise ScenarioError(f"outputs.{key}.topic: converted {key} go to the contract's topic; name yours")
+            adapted = output.type != "actor_tracks" or output.reliability != "reliable"
+            if adapted and output.topic == _CONTRACT_OBJECTS[key]:
+                raise ScenarioError(
+                    f"outputs.{key}.topic: the adapter publishes these on the contract's topic; name yours"
+                )
 
     def plan_converted(self) -> bool:
         """Whether the plan is converted (type, frame or timing), not just relayed."""

@@ -203,6 +203,9 @@ def suggested_profile(nodes: list[dict[str, Any]], command: tuple[str, ...], tim
         topic, msgtype = found[topics.PLAN.name]
         kind = next(key for key, value in PLAN_MSGTYPES.items() if value == msgtype)
         outputs["plan"] = {"topic": topic, "type": kind}
+        offered = [e["qos"] for node in nodes for e in node["publishes"] if e["topic"] == topic and e["qos"]]
+        if any(qos["reliability"] == "best_effort" for qos in offered):
+            outputs["plan"]["reliability"] = "best_effort"
     profile: dict[str, Any] = {"profile": 1, "name": "my_stack", "processes": [{"command": " ".join(command)}]}
     if timer:
         profile["timing"] = {"mode": "timer"}

@@ -34,6 +34,7 @@ from advsim_ros.adapters.timing import PlanBook
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import path_msg
+from advsim_ros.contract.qos import QosSpec, Reliability
 from advsim_ros.contract.spatial import tf_message
 from advsim_ros.contract.tracks import track_array_msg
 from advsim_ros.core.metrics import NS_PER_S
@@ -85,7 +86,7 @@ class StackAdapter(GraphNode):
             spec = topics.stack_topic(contract_name)
             theirs = dataclasses.replace(spec, name=stack_name)
             source, target = (spec, theirs) if spec in topics.STACK_INPUTS else (theirs, spec)
-            self.subscribe(source, self.publisher(target), raw=True)
+            self.subscribe(source, self.publisher(target), raw=True, qos=self._read_qos(contract_name, source))
             self.get_logger().info(f"relaying {source.name} -> {target.name} ({spec.msgtype})")
 
     def _adapt_inputs(self, renamed: dict[str, str]) -> None:
@@ -162,8 +163,21 @@ class StackAdapter(GraphNode):
                 self.books[contract.name] = PlanBook(self.timing)
             self.answer_publishers[contract.name] = self.publisher(contract)
             theirs = topics.TopicSpec(topic, msgtype, contract.offered)
-            self.subscribe(theirs, lambda raw, c=contract, t=msgtype: self.on_answer(c, t, raw), raw=True)
+            qos = self._read_qos(contract.name, theirs)
+            self.subscribe(theirs, lambda raw, c=contract, t=msgtype: self.on_answer(c, t, raw), raw=True, qos=qos)
             self.get_logger().info(f"{contract.name} <- {topic} ({msgtype}, {mode})")
+
+    def _read_qos(self, contract_name: str, source: topics.TopicSpec) -> QosSpec:
+        """How the adapter reads a topic: as offered, but best effort where the stack publishes so."""
+        outputs = self.profile.outputs
+        reliability = {
+            topics.PLAN.name: outputs.plan.reliability,
+            topics.DETECTIONS.name: outputs.detections.reliability,
+            topics.PREDICTIONS.name: outputs.predictions.reliability,
+        }.get(contract_name, "reliable")
+        if reliability == "reliable":
+            return source.offered
+        return dataclasses.replace(source.offered, reliability=Reliability.BEST_EFFORT)
 
     def on_answer(self, contract: topics.TopicSpec, msgtype: str, raw: bytes) -> None:
         outputs = self.profile.outputs

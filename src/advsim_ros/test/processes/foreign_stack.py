@@ -5,8 +5,8 @@ and stamp their answer with that clock, not with the sweep:
 
 - ``gnss``: reads the LiDAR on /points_raw and its position from sensor_msgs/NavSatFix on /fix,
   anchors a `map` frame (east-north-up) at its first fix, and publishes a *spatial* nav_msgs/Path
-  (poses without times, 20 m ahead along its heading from the last two fixes) in `map` on
-  /gnss_planner/path.
+  (poses without times, 60 m ahead along its heading from the last two fixes) in `map` on
+  /gnss_planner/path, with best-effort QoS.
 - ``autoware``: reads /sensing/lidar/concatenated/pointcloud and /localization/kinematic_state
   (nav_msgs/Odometry in `map`) and publishes autoware_planning_msgs/Trajectory (points with speeds,
   no times) on /planning/scenario_planning/trajectory, with what blocks its corridor as
@@ -58,7 +58,8 @@ class ForeignStack(Node):
         if dialect == "gnss":
             self.create_subscription(PointCloud2, "/points_raw", self.on_sweep, qos_profile_sensor_data)
             self.create_subscription(NavSatFix, "/fix", self.on_fix, 10)
-            self.publisher = self.create_publisher(PathMsg, "/gnss_planner/path", 10)
+            # best effort, as some planners publish: the profile says so and the adapter reads it that way
+            self.publisher = self.create_publisher(PathMsg, "/gnss_planner/path", qos_profile_sensor_data)
         else:
             from autoware_planning_msgs.msg import Trajectory
 
