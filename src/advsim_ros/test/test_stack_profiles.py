@@ -41,6 +41,7 @@ def _gnss_profile(folder: Path) -> Path:
                 "topic": "/gnss_planner/path",
                 "frame_id": "map",
                 "frame_origin": "first_fix",
+                "reliability": "best_effort",
             }
         },
     }
@@ -138,6 +139,7 @@ def test_advsim_doctor_proposes_a_profile_for_a_foreign_stack_and_passes_it_with
     assert suggested["inputs"]["lidar"] == {"topic": "/points_raw"}
     assert suggested["inputs"]["pose"]["type"] == "navsatfix"
     assert suggested["outputs"]["plan"]["topic"] == "/gnss_planner/path"
+    assert suggested["outputs"]["plan"]["reliability"] == "best_effort"
 
     profiled = _advsim(
         "doctor", str(synthetic_bag), "--stack-profile", str(_gnss_profile(tmp_path)), "-o", str(tmp_path / "ok"),
@@ -155,6 +157,7 @@ def test_a_misconfigured_profile_is_one_line_and_starts_nothing(synthetic_bag: P
         "unknown type": "processes: [{command: x}]\noutputs: {plan: {type: autoware_path}}\n",
         "missing frame": "processes: [{command: x}]\noutputs: {plan: {frame_origin: static}}\n",
         "missing datum": "processes: [{command: x}]\ninputs: {pose: {type: navsatfix, topic: /fix}}\n",
+        "wrong QoS": "processes: [{command: x}]\noutputs: {plan: {topic: /p, reliability: keep_all}}\n",
     }
     for case, text in cases.items():
         profile = tmp_path / f"{case.replace(' ', '_')}.yaml"
