@@ -102,3 +102,23 @@ def test_unusable_answers_are_refused() -> None:
         Poses(np.zeros((2, 2)), np.zeros(2), stamps_ns=np.array([5, 5]))
     with pytest.raises(ValueError, match="no fix was sent"):
         frame_transform(PlanOutput(frame_id="map", frame_origin="first_fix"), Datum(0.0, 0.0), None)
+
+
+def test_a_plan_frame_is_found_through_tf_in_either_direction_and_over_several_links() -> None:
+    from advsim_ros.adapters.plans import chained
+
+    def pose(x: float, y: float, yaw: float) -> np.ndarray:
+        matrix = np.eye(4)
+        matrix[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+        matrix[:2, 3] = [x, y]
+        return matrix
+
+    edges = {("map", "world"): pose(-10.0, 0.0, 0.0), ("map", "odom"): pose(0.0, 5.0, math.pi / 2)}
+    found = chained(edges, "world", "odom")
+    assert found is not None
+    np.testing.assert_allclose(found[:2, 3], [10.0, 5.0], atol=1e-9)
+    output = PlanOutput(frame_id="odom", frame_origin="tf")
+    transform = frame_transform(output, None, None, ("world", edges))
+    assert (transform.x, transform.y, transform.yaw) == pytest.approx((10.0, 5.0, math.pi / 2))
+    with pytest.raises(ValueError, match="no transform between world and base"):
+        frame_transform(PlanOutput(frame_id="base", frame_origin="tf"), None, None, ("world", edges))

@@ -15,12 +15,14 @@ world frame. Stacks answer otherwise; each shape is brought to that one by a sta
 
 Positions are interpolated linearly in time, headings along the shortest turn. Frames: a plan in
 another frame is moved into the world by a planar transform (a static pose, the east-north-up
-frame of a geodetic datum, or the one at the stack's first GNSS fix); the world frame's own datum
-makes it east-north-up at that point.
+frame of a geodetic datum, the one at the stack's first GNSS fix, or the latest transforms the
+stack and the graph publish on /tf and /tf_static, chained); the world frame's own datum makes it
+east-north-up at that point.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,8 +89,37 @@ def geodetic_of(datum: Datum, east: float, north: float, up: float) -> tuple[flo
     return float(latitude), float(longitude), float(altitude)
 
 
-def frame_transform(output: PlanOutput, world_datum: Datum | None, first_fix_xy: FloatArray | None) -> PlanarTransform:
-    """world_T_plan-frame for the profile's frame_origin (first_fix: the world position of the first fix sent)."""
+def chained(edges: Mapping[tuple[str, str], FloatArray], source: str, target: str) -> FloatArray | None:
+    """source_T_target (4, 4) through the known parent -> child transforms, either way round; None if unlinked."""
+    links: dict[str, list[tuple[str, FloatArray]]] = {}
+    for (parent, child), matrix in edges.items():
+        links.setdefault(parent, []).append((child, matrix))
+        inverse: FloatArray = np.linalg.inv(matrix).astype(np.float64)
+        links.setdefault(child, []).append((parent, inverse))
+    reached: dict[str, FloatArray] = {source: np.eye(4)}
+    frontier = [source]
+    while frontier and target not in reached:
+        frame = frontier.pop(0)
+        for neighbour, matrix in links.get(frame, []):
+            if neighbour not in reached:
+                reached[neighbour] = reached[frame] @ matrix
+                frontier.append(neighbour)
+    return reached.get(target)
+
+
+def planar(matrix: FloatArray) -> PlanarTransform:
+    """The planar part (x, y, yaw) of a 4x4 transform."""
+    return PlanarTransform(float(matrix[0, 3]), float(matrix[1, 3]), float(np.arctan2(matrix[1, 0], matrix[0, 0])))
+
+
+def frame_transform(
+    output: PlanOutput,
+    world_datum: Datum | None,
+    first_fix_xy: FloatArray | None,
+    tf: tuple[str, Mapping[tuple[str, str], FloatArray]] | None = None,
+) -> PlanarTransform:
+    """world_T_plan-frame for the profile's frame_origin (first_fix: the world position of the first fix sent;
+    tf: the world frame's name and the latest transforms seen on /tf and /tf_static)."""
     if output.frame_origin == "world":
         return PlanarTransform()
     if output.frame_origin == "static":
@@ -98,6 +129,12 @@ def frame_transform(output: PlanOutput, world_datum: Datum | None, first_fix_xy:
         if first_fix_xy is None:
             raise ScenarioError("the plan is in the frame of the first GNSS fix, and no fix was sent yet")
         return PlanarTransform(float(first_fix_xy[0]), float(first_fix_xy[1]), 0.0)
+    if output.frame_origin == "tf":
+        world, edges = tf if tf is not None else ("", {})
+        found = chained(edges, world, output.frame_id) if world else None
+        if found is None:
+            raise ScenarioError(f"no transform between {world or 'the world frame'} and {output.frame_id} on /tf yet")
+        return planar(found)
     assert output.origin_datum is not None  # checked by PlanOutput
     if world_datum is None:
         raise ScenarioError("frame_origin datum needs the world frame's datum (inputs.pose.datum)")

@@ -45,7 +45,7 @@ PREDICTION_TYPES = ("actor_tracks", "autoware_predicted_objects")
 POSE_TYPES = ("odometry", "pose_stamped", "pose_with_covariance_stamped", "navsatfix")
 TIMING_MODES = ("per_sweep", "timer")
 PLAN_STAMPS = ("header", "arrival")
-FRAME_ORIGINS = ("world", "static", "first_fix", "datum")
+FRAME_ORIGINS = ("world", "static", "first_fix", "datum", "tf")
 RELIABILITIES = ("reliable", "best_effort")  # how the stack publishes an answer (the graph's own reads are reliable)
 # Contract inputs a profile may give other names (LiDAR and pose have sections of their own)
 RENAMEABLE_INPUTS = tuple(spec.name for spec in topics.STACK_INPUTS if spec not in (topics.LIDAR, topics.ODOM))
@@ -198,7 +198,7 @@ class PlanOutput:
     type: str = "path"  # path (stamped poses) | spatial_path | autoware_trajectory | pose_array
     topic: str = topics.PLAN.name
     frame_id: str = ""  # the frame the stack plans in ("": the world frame)
-    frame_origin: str = "world"  # world | static (origin_pose) | first_fix | datum (origin_datum)
+    frame_origin: str = "world"  # world | static (origin_pose) | first_fix | datum (origin_datum) | tf (from /tf)
     origin_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  # static: x [m], y [m], yaw [rad] in world
     origin_datum: Datum | None = None  # datum: the frame is east-north-up at this point
     acceleration: float = 0.0  # untimed plans: driven from the ego's speed with this acceleration [m/s^2]

@@ -35,7 +35,7 @@ from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import path_msg
 from advsim_ros.contract.qos import QosSpec, Reliability
-from advsim_ros.contract.spatial import tf_message
+from advsim_ros.contract.spatial import tf_message, transforms_of
 from advsim_ros.contract.tracks import track_array_msg
 from advsim_ros.core.metrics import NS_PER_S
 from advsim_ros.core.types import ScenarioError
@@ -98,6 +98,11 @@ class StackAdapter(GraphNode):
             self.get_logger().info(f"pose: {topics.ODOM.name} -> {pose.topic} ({pose_spec.msgtype})")
         self.subscribe(topics.ODOM, self.on_odometry, raw=True)  # also the ego's speed and the frames' stamps
         self.subscribe(topics.CLOCK, self.on_clock, raw=True)
+        self.tf_edges: dict[tuple[str, str], np.ndarray] = {}  # frame_origin tf: the latest transforms seen
+        if self.profile.outputs.plan.frame_origin == "tf":
+            for spec in (topics.TF, topics.TF_STATIC):
+                name = renamed.get(spec.name, spec.name)
+                self.subscribe(dataclasses.replace(spec, name=name), self.on_tf, raw=True)
         lidar = self.profile.inputs.lidar
         if lidar.frame_id or lidar.also:
             targets = [topic for topic in (lidar.topic, *lidar.also) if topic != topics.LIDAR.name]
@@ -108,6 +113,9 @@ class StackAdapter(GraphNode):
             self.subscribe(topics.LIDAR, self.on_sweep, raw=True)
             frame = f" in frame {lidar.frame_id}" if lidar.frame_id else ""
             self.get_logger().info(f"LiDAR: {topics.LIDAR.name} -> {', '.join(targets)}{frame}")
+
+    def on_tf(self, raw: bytes) -> None:
+        self.tf_edges.update(transforms_of(codec.decode(raw, names.TF_MESSAGE)))
 
     def on_clock(self, raw: bytes) -> None:
         self.clock_ns = codec.stamp_ns(codec.decode(raw, names.CLOCK).clock)
@@ -211,7 +219,8 @@ class StackAdapter(GraphNode):
         """The contract's message for the sweep stamped sweep_ns from an answer the stack made at made_ns."""
         plan_output = self.profile.outputs.plan
         try:
-            transform = frame_transform(plan_output, self.profile.inputs.pose.datum, self.first_fix_xy)
+            tf = (self.world_frame, self.tf_edges)
+            transform = frame_transform(plan_output, self.profile.inputs.pose.datum, self.first_fix_xy, tf)
         except ScenarioError as error:
             self.get_logger().error(f"{contract.name} for sweep {sweep_ns}: {error}")
             return
