@@ -14,7 +14,7 @@ import pytest
 from advsim_ros.core.curation import crop_frames
 from advsim_ros.core.types import Scenario
 from advsim_ros.io.bag import write_scenario_bag
-from advsim_ros.io.synthetic import generate_synthetic_log
+from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
 from advsim_ros.ros.launcher import Launcher, graph_environment, reserve_domain_id
 
 PROCESSES = Path(__file__).resolve().parent / "processes"
@@ -57,6 +57,13 @@ def synthetic_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A synthetic street log (ray-cast LiDAR, tracks, map) as a scenario bag."""
     log = generate_synthetic_log(np.random.default_rng(3), scenario_id="synthetic_seed3")
     return write_scenario_bag(log.scenario, tmp_path_factory.mktemp("synthetic") / "log", source="synthetic/seed=3")
+
+
+@pytest.fixture(scope="session")
+def lead_brake_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The demo's synthetic scene (family lead_brake, seed 1): a lead car braking ahead of the ego."""
+    log = generate_synthetic_log(np.random.default_rng(1), SyntheticConfig(family="lead_brake"))
+    return write_scenario_bag(log.scenario, tmp_path_factory.mktemp("lead_brake") / "log", source="synthetic")
 
 
 @pytest.fixture

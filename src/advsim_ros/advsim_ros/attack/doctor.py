@@ -123,7 +123,10 @@ def _qos_problem(spec: TopicSpec, direction: str, qos: dict[str, Any] | None) ->
 
 
 def topic_rows(
-    nodes: list[dict[str, Any]], renamed: dict[str, str], expected: dict[str, str] | None = None
+    nodes: list[dict[str, Any]],
+    renamed: dict[str, str],
+    expected: dict[str, str] | None = None,
+    best_effort: frozenset[str] = frozenset(),
 ) -> list[TopicRow]:
     """The stack's endpoint for every contract topic; ``expected``: types a profile adapts (contract topic -> type)."""
     expected = expected or {}
@@ -145,7 +148,8 @@ def topic_rows(
             hint = f" (a profile adapts it: type {' or '.join(adaptable)})" if adaptable else ""
             verdict = f"wrong type: expected {wanted}{hint}"
         else:
-            verdict = _qos_problem(spec, direction, endpoint["qos"]) or "ok"
+            adapted_qos = spec.name in best_effort  # the profile says it publishes best effort: read so
+            verdict = ("" if adapted_qos else _qos_problem(spec, direction, endpoint["qos"])) or "ok"
         found = ", ".join(sorted({node for node, _ in hits}))
         rows.append(TopicRow(spec.name, direction, name, found, endpoint["type"], _qos_text(endpoint["qos"]), verdict))
     return rows
@@ -257,7 +261,13 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     if profile is not None:
         expected[topics.ODOM.name] = POSE_MSGTYPES[profile.inputs.pose.type]
         expected[topics.PLAN.name] = PLAN_MSGTYPES[profile.outputs.plan.type]
-    rows = topic_rows(nodes, options.stack.relayed(), expected)  # renamed (--remap-mode rename): the contract's
+    best_effort = frozenset()
+    if profile is not None:
+        outputs = profile.outputs
+        answers = ((topics.PLAN, outputs.plan), (topics.DETECTIONS, outputs.detections),
+                   (topics.PREDICTIONS, outputs.predictions))  # fmt: skip
+        best_effort = frozenset(spec.name for spec, output in answers if output.reliability == "best_effort")
+    rows = topic_rows(nodes, options.stack.relayed(), expected, best_effort)  # renamed (rename mode): the contract's
     score = (summary.get("queries") or [{}])[0].get("score", {}) if summary else {}
     timer = profile is not None and profile.timing.timer
     plans, sweeps = int(score.get("plans_received") or 0), int(score.get("sweeps_delivered") or 0)

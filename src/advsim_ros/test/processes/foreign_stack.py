@@ -82,7 +82,8 @@ class ForeignStack(Node):
         x, y, z = (np.asarray(points[axis], dtype=np.float64) for axis in "xyz")
         ahead = (x > 2.0) & (x < 20.0) & (np.abs(y) < 1.5) & (z > -1.2)
         self.blocked = int(np.count_nonzero(ahead)) > 30
-        self.obstacle = (float(np.mean(x[ahead])), float(np.mean(y[ahead]))) if self.blocked else None
+        # a car-sized box behind the nearest returns ahead (what a rear bumper's returns belong to)
+        self.obstacle = (float(np.min(x[ahead])) + 2.25, float(np.mean(y[ahead]))) if self.blocked else None
 
     def on_top(self, cloud: PointCloud2) -> None:
         """The per-sensor topic, as Autoware's concatenation node reads it: counted, to show it is fed."""
