@@ -27,6 +27,8 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/params", glob("../../params/*.yaml")),
+        # ros2 launch advsim_ros attack.launch.py / replay.launch.py (full ROS 2 installs)
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
