@@ -85,7 +85,8 @@ def test_the_same_generator_state_gives_the_same_sweep(short_log: SyntheticLog, 
     assert np.array_equal(first, again)
     calibration = renderer_for(short_model).calibration(short_log.scenario)
     assert calibration.background_drop.shape == (short_model.sensor.num_beams,)
-    assert 0.0 <= calibration.range_noise_std <= 0.05
+    assert calibration.range_noise_std == pytest.approx(0.01, abs=0.005)  # the log's 1 cm noise
+    assert np.all(np.abs(calibration.background_bias) <= 0.02)  # exact meshes: no bias to speak of
 
 
 def test_actors_are_rendered_where_they_are_placed(short_log: SyntheticLog, short_model: ResimModel) -> None:

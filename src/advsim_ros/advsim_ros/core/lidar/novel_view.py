@@ -12,9 +12,10 @@ is cast from the ego's actual sensor pose against
   its box's angular footprint; glass surfels let rays through as in ``ResimModel.cast_actor``.
 
 Each ray keeps its nearest hit. Then the log's sensor effects: an actor hit returns nothing
-with its asset's ray-drop probability, a background hit with its beam's drop probability, and
-ranges get Gaussian noise; both are estimated from the log by ``calibrate_rendering`` (render
-at the logged poses, compare with the logged sweeps). The points come out in the logged
+with its asset's ray-drop probability, a background hit with its beam's drop probability,
+background ranges get their beam's bias back, and ranges get Gaussian noise; all three are
+estimated from the log by ``calibrate_rendering`` (render at the logged poses, compare with
+the logged sweeps). The points come out in the logged
 sweeps' own fields (x, y, z, intensity, ring where the log has them; other fields zero), beam
 after beam, each beam one counter-clockwise turn from the log's scan start, like the log.
 
@@ -43,6 +44,7 @@ MISS, BACKGROUND, GROUND_FILL, ACTOR = 0, 1, 2, 3
 CALIBRATION_FRAMES = 6  # logged sweeps spread over the log that the ray drop and noise are estimated from
 _CALIBRATION_SEED = 20210602  # the calibration's own random stream (the same model calibrates the same way)
 _NOISE_BAND = 0.3  # residuals beyond this are model error (a missing surfel), not sensor noise [m]
+_BIAS_BAND = 0.5  # residuals beyond this are left out of a beam's range bias [m]
 _NOISE_MIN_COSINE = 0.7  # the noise is measured on rays meeting the background within ~45 deg of its normal
 _MAX_NOISE = 0.05  # cap on the estimated range noise [m]
 _WINDOW_MARGIN = 0.01  # growth of an actor's angular window [rad]
@@ -55,11 +57,12 @@ class RenderCalibration:
 
     background_drop: FloatArray  # (B,) chance that a ray of each beam hitting the background returns nothing
     range_noise_std: float  # Gaussian range noise of every return [m]
+    background_bias: FloatArray  # (B,) added to the range of each beam's background hits [m]
 
     @staticmethod
     def none(num_beams: int) -> RenderCalibration:
-        """No ray drop on the background and no noise (actors keep their assets' drop)."""
-        return RenderCalibration(background_drop=np.zeros(num_beams), range_noise_std=0.0)
+        """No ray drop on the background, no noise, no bias (actors keep their assets' drop)."""
+        return RenderCalibration(np.zeros(num_beams), 0.0, np.zeros(num_beams))
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +87,8 @@ class ModelRenderer:
     """A model made ready to render full sweeps: its grid of rays and its casters."""
 
     def __init__(self, model: ResimModel) -> None:
-        self.model = model
+        # A weak reference: renderer_for keeps renderers in a dict weakly keyed by their model.
+        self._model = weakref.ref(model)
         sensor = model.sensor
         rows = np.repeat(np.arange(sensor.num_beams, dtype=np.int64), sensor.num_azimuths)
         columns = np.tile(np.arange(sensor.num_azimuths, dtype=np.int64), sensor.num_beams)
@@ -101,6 +105,13 @@ class ModelRenderer:
         self.order = self._scan_order()
         self.row_labels = self._row_labels()
         self._calibrations: dict[str, RenderCalibration] = {}
+
+    @property
+    def model(self) -> ResimModel:
+        model = self._model()
+        if model is None:
+            raise ResimError("render: the model of this renderer is gone")
+        return model
 
     def _row_labels(self) -> IntArray:
         """(B,) the ring value (or scan-order segment) the log gives each row; the row itself where none."""
@@ -155,12 +166,13 @@ class ModelRenderer:
             kind[chosen] = ACTOR
             actor[chosen] = index
             surfel[chosen] = -1
+        background = (kind == BACKGROUND) | (kind == GROUND_FILL)
+        ranges[background] += calibration.background_bias[self.rows[background]]
         if calibration.range_noise_std > 0:
             ranges = ranges + rng.normal(0.0, calibration.range_noise_std, ranges.shape[0])
         sensor = model.sensor
         returned = np.isfinite(ranges) & (ranges >= sensor.min_range) & (ranges <= sensor.max_range)
         chance = np.zeros(ranges.shape[0])
-        background = (kind == BACKGROUND) | (kind == GROUND_FILL)
         chance[background] = calibration.background_drop[self.rows[background]]
         on_actor = kind == ACTOR
         drops = np.array([model.assets[actor_id].drop_probability for actor_id in actor_ids] + [0.0])
@@ -248,13 +260,17 @@ def calibrate_rendering(
     model's own error (surfel layers, the sweep's motion during its turn: ~0.1 m on KITTI),
     which neighbouring rays share; the sensor's noise is not shared, so it is taken from the
     difference of the residuals of azimuth neighbours on one beam: 1.4826 x MAD / sqrt(2)
-    (capped at 5 cm).
+    (capped at 5 cm). The shared part has a per-beam bias: rays that graze the road meet the
+    highest of the overlapping ground surfels first, so the far-reaching beams return ~0.1 m
+    short on KITTI; each beam's median residual over its background hits (within 0.5 m) is
+    added back to its background ranges.
     """
     sensor = renderer.model.sensor
     picks = np.unique(np.linspace(0, len(scenario.sweeps) - 1, min(frames, len(scenario.sweeps))).round().astype(int))
     hit = np.zeros(sensor.num_beams)
     kept = np.zeros(sensor.num_beams)
     residuals: list[FloatArray] = []
+    per_beam: list[list[FloatArray]] = [[] for _ in range(sensor.num_beams)]
     clean = RenderCalibration.none(sensor.num_beams)
     for pick in picks:
         sweep = scenario.sweeps[int(pick)]
@@ -270,13 +286,18 @@ def calibrate_rendering(
         with np.errstate(invalid="ignore"):
             residual = logged - rays.ranges
             usable = background & np.isfinite(logged) & facing & (np.abs(residual) <= _NOISE_BAND)
+            banded = background & np.isfinite(logged) & (np.abs(residual) <= _BIAS_BAND)
+        for beam in range(sensor.num_beams):
+            per_beam[beam].append(residual[banded & (renderer.rows == beam)])
         image = np.where(usable, residual, np.nan).reshape(sensor.num_beams, sensor.num_azimuths)
         step = (np.roll(image, -1, axis=1) - image).reshape(-1)
         residuals.append(step[np.isfinite(step)])
     drop = np.clip(1.0 - np.divide(kept, hit, out=np.ones(sensor.num_beams), where=hit > 0), 0.0, 1.0)
     steps = np.concatenate(residuals) if residuals else np.zeros(0)
     noise = 1.4826 * float(np.median(np.abs(steps - np.median(steps)))) / np.sqrt(2.0) if steps.size else 0.0
-    return RenderCalibration(background_drop=drop, range_noise_std=min(noise, _MAX_NOISE))
+    beams = [np.concatenate(parts) for parts in per_beam]
+    bias = np.array([float(np.median(values)) if values.size else 0.0 for values in beams])
+    return RenderCalibration(background_drop=drop, range_noise_std=min(noise, _MAX_NOISE), background_bias=bias)
 
 
 _RENDERERS: weakref.WeakKeyDictionary[ResimModel, ModelRenderer] = weakref.WeakKeyDictionary()
