@@ -164,7 +164,14 @@ class SurfaceCaster:
         count = directions.shape[0]
         if count == 0 or self.surface.num_triangles == 0:
             return RayHits.misses(count)
-        answer = self._scene.cast_rays(as_tensor(self._rays(origins, directions, pose)))
+        return self.cast_prepared(self._rays(origins, directions, pose))
+
+    def cast_prepared(self, rays: npt.NDArray[np.float32]) -> RayHits:
+        """``cast`` for rays already in the surface's frame: (N, 6) float32 origins and unit directions."""
+        count = rays.shape[0]
+        if count == 0 or self.surface.num_triangles == 0:
+            return RayHits.misses(count)
+        answer = self._scene.cast_rays(as_tensor(rays))
         ranges = answer["t_hit"].numpy().astype(np.float64)
         hit = np.isfinite(ranges)
         primitive = answer["primitive_ids"].numpy().astype(np.int64)
