@@ -38,6 +38,7 @@ _STACK = (
     Argument("remap_file", "--remap-file", "", "YAML mapping of contract topic -> your topic"),
     Argument("remap_mode", "--remap-mode", "relay", "relay or rename"),
     Argument("no_restart", "--no-restart", "false", "true: do not restart the stack when it exits", "flag"),
+    Argument("loop", "--loop", "open", "open (the decision plan is scored) or closed (the ego drives the plans)"),
     Argument("plan_timeout", "--plan-timeout", "10.0", "longest wait for a plan per frame [s]"),
     Argument("param", "--param", "", "NODE.KEY=VALUE node parameters, space-separated (shell quoting)", "list"),
     Argument("connect_timeout", "--connect-timeout", "120.0", "longest wait for the stack to connect [s]"),

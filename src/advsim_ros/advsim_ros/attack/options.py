@@ -206,6 +206,7 @@ class AttackOptions:
     replay_only: bool = False  # `advsim replay`: score the bag's own scenario, no search, nothing moved
     replay_runs: int = 1  # `advsim replay`: how many times
     visual_report: bool = True  # draw bev.gif and report.html (seconds; campaigns may leave them to `advsim report`)
+    loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the stack's plans
 
     def __post_init__(self) -> None:
         if self.queries < 1 and not self.replay_only:
@@ -214,6 +215,8 @@ class AttackOptions:
             raise ScenarioError(f"--actors: must be at least 1, got {self.actors}")
         if self.reruns < 0 or self.rerun_top < 0 or self.replay_runs < 1:
             raise ScenarioError("--reruns and --rerun-top must be >= 0, --runs >= 1")
+        if self.loop not in ("open", "closed"):
+            raise ScenarioError(f"--loop: open or closed, got {self.loop!r}")
         for name in ("plan_timeout", "connect_timeout", "startup_timeout", "query_timeout"):
             if not getattr(self, name) > 0:
                 raise ScenarioError(f"{name}: must be positive, got {getattr(self, name)}")

@@ -65,8 +65,9 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
     """The attack's parameters on top of params/ (window start added once the window is chosen)."""
     overrides: dict[str, Any] = {
         "/**": {"ros__parameters": {"window": {"scenario_bag": str(options.bag.resolve())}}},
-        "/scenario_player": {"ros__parameters": {"plan_timeout": options.plan_timeout}},
-        "/lidar_resim": {"ros__parameters": {"build_model": not options.replay_only}},
+        "/scenario_player": {"ros__parameters": {"plan_timeout": options.plan_timeout, "loop": options.loop}},
+        # closed loop renders sweeps from where the ego drove: the model is needed even when nothing moves
+        "/lidar_resim": {"ros__parameters": {"build_model": not options.replay_only or options.loop == "closed"}},
     }
     if not options.replay_only:
         overrides["/perturber"] = {"ros__parameters": {"num_actors": options.actors}}
@@ -127,6 +128,7 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
             "stack_remappings": dict(sorted(options.stack.remappings.items())),
             "stack_parameters": stack.hexdigest(),
             "mode": "replay" if options.replay_only else "attack",
+            **({"loop": options.loop} if options.loop != "open" else {}),  # open-loop journals of before resume
             "algorithm": options.algorithm,
             "seed": options.seed,
             "queries": options.queries,
@@ -238,14 +240,18 @@ def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryReco
     """The journal line of a finished query (plan moved to log time)."""
     from advsim_ros.contract.codec import ContractError
     from advsim_ros.contract.plan import plan_from_path
+    from advsim_ros.core.closed_loop import ControllerConfig
 
-    plan = None
+    plan = executed = None
     episode = finished.episode
+    offset = clock_offset(finished.perturbation.query_id)
     if episode is not None and episode.decision_plan is not None:
         try:
-            plan = plan_from_path(episode.decision_plan, clock_offset(finished.perturbation.query_id))
+            plan = plan_from_path(episode.decision_plan, offset)
         except ContractError:
             plan = None
+    if episode is not None and episode.executed is not None:
+        executed = episode.executed.to_executed(ControllerConfig().wheelbase, offset)
     perturbation = finished.perturbation
     return QueryRecord(
         query_id=perturbation.query_id,
@@ -255,4 +261,5 @@ def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryReco
         score=finished.score.as_dict(),
         tracks=tuple(finished.tracks),
         plan=plan,
+        executed=executed,
     )

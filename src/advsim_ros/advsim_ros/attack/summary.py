@@ -132,14 +132,25 @@ COMPARISON_ROWS = (
     ("jerk", "jerk [m/s^3]", "{:.2f}"),
     ("adversarial_loss", "L_adv (higher: worse for the stack)", "{:.2f}"),
 )
+# Closed loop: the rows above are of what the ego drove; these say how it went and what open loop says
+CLOSED_LOOP_ROWS = (
+    ("min_distance", "closest gap to an actor [m]", "{:.2f}"),
+    ("min_time_to_collision", "smallest time to collision [s]", "{:.2f}"),
+    ("progress", "distance driven [m]", "{:.1f}"),
+    ("open_loop_collision_5s", "open loop: decision plan collides (5 s)", "{:.0f}"),
+    ("open_loop_adversarial_loss", "open loop: L_adv of the decision plan", "{:.2f}"),
+)
 
 
 def comparison_table(summary: dict[str, Any]) -> str:
     """The original and the adversarial scenario's scores side by side, as aligned text lines."""
     columns = (summary.get("original") or {}, summary.get("adversarial") or {})
-    width = max(len(label) for _, label, _ in COMPARISON_ROWS)
-    lines = [f"{'':{width}}  {'original':>10}  {'adversarial':>11}"]
-    for key, label, form in COMPARISON_ROWS:
+    closed = any(column.get("loop") == "closed" for column in columns)
+    rows = COMPARISON_ROWS + CLOSED_LOOP_ROWS if closed else COMPARISON_ROWS
+    width = max(len(label) for _, label, _ in rows)
+    title = "closed loop: what the ego drove" if closed else ""
+    lines = [f"{title:{width}}  {'original':>10}  {'adversarial':>11}"]
+    for key, label, form in rows:
         cells = [form.format(c[key]) if isinstance(c.get(key), (int, float)) else "-" for c in columns]
         lines.append(f"{label:{width}}  {cells[0]:>10}  {cells[1]:>11}")
     return "\n".join(lines)

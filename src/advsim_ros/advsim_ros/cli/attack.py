@@ -100,6 +100,13 @@ def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
         "-r YOURS:=CONTRACT to your command (only when it hands --ros-args to its node)",
     )
     parser.add_argument("--no-restart", action="store_true", help="do not restart the stack when it exits")
+    parser.add_argument(
+        "--loop",
+        choices=("open", "closed"),
+        default="open",
+        help="open (default, the paper's): score the decision plan; closed: the ego drives the stack's plans for "
+        "5 s, every sweep rendered where it is, and what it drove is scored (docs/attack.md)",
+    )
     parser.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
     parser.add_argument(
         "--param",
@@ -197,6 +204,7 @@ def _run_attack(args: argparse.Namespace) -> int:
         reruns=args.reruns,
         rerun_top=args.rerun_top,
         parameter_overrides=parameter_overrides(args.param),
+        loop=args.loop,
     )
     return _attack_and_report(options)
 
@@ -233,6 +241,7 @@ def _run_replay(args: argparse.Namespace) -> int:
         replay_only=True,
         replay_runs=args.runs,
         parameter_overrides=parameter_overrides(args.param),
+        loop=args.loop,
     )
     recorded = recorded_score(args.bag)
     try:

@@ -144,6 +144,14 @@ class EpisodeRecord:
     decision_plan: Any = None  # nav_msgs/Path of the decision frame (sim time), None when it never came
     detections: TrackArrayRecord | None = None
     predictions: TrackArrayRecord | None = None
+    executed: TrackRecord | None = None  # closed loop: what the ego drove from the decision on (sim time)
+
+
+def _no_track() -> Any:
+    """An empty ActorTrack (the Episode's executed field in open loop)."""
+    return message(
+        names.ACTOR_TRACK, actor_id="", actor_class="", length=0.0, width=0.0, height=0.0, confidence=0.0, states=[]
+    )
 
 
 def episode_msg(episode: EpisodeRecord, run_id: int, detections: Any = None, predictions: Any = None) -> Any:
@@ -171,6 +179,8 @@ def episode_msg(episode: EpisodeRecord, run_id: int, detections: Any = None, pre
         detections=detections if detections is not None else empty_tracks,
         has_predictions=predictions is not None,
         predictions=predictions if predictions is not None else empty_tracks,
+        has_executed=episode.executed is not None,
+        executed=track_msg(episode.executed) if episode.executed is not None else _no_track(),
     )
 
 
@@ -189,6 +199,7 @@ def episode_from_msg(episode: Any) -> EpisodeRecord:
         decision_plan=episode.decision_plan if episode.has_plan else None,
         detections=track_array_from_msg(episode.detections) if episode.has_detections else None,
         predictions=track_array_from_msg(episode.predictions) if episode.has_predictions else None,
+        executed=track_from_msg(episode.executed) if episode.has_executed else None,
     )
 
 
@@ -239,6 +250,12 @@ class ScoreRecord:
     detection_ap: float = math.nan  # [1]
     prediction_l2_3s: float = math.nan  # [m]
     prediction_l2_5s: float = math.nan  # [m]
+    loop: str = "open"  # what the objective and metrics above are of: the decision plan, or what the ego drove
+    open_loop_adversarial_loss: float = math.nan  # closed loop: L_adv of the decision plan [1]
+    open_loop_collision_5s: float = math.nan  # closed loop: the decision plan's collision within 5 s [1]
+    min_distance: float = math.nan  # closed loop: smallest ego-actor box gap [m]
+    min_time_to_collision: float = math.nan  # closed loop [s]
+    progress: float = math.nan  # closed loop: path length driven [m]
 
     @property
     def ok(self) -> bool:
@@ -280,4 +297,5 @@ def score_from_msg(score: Any) -> ScoreRecord:
     values = {name: getattr(score, name) for name in SCORE_FIELDS}
     values["status"] = Status(int(score.status))
     values["message"] = str(values["message"])
+    values["loop"] = str(values["loop"])
     return ScoreRecord(**values)

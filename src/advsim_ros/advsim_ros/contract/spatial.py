@@ -76,32 +76,36 @@ def _gradient(values: FloatArray, times_s: FloatArray) -> FloatArray:
     return result
 
 
+def odometry_msg(
+    stamp_ns: int, world_frame: str, ego_frame: str, pose: FloatArray, velocity: FloatArray, yaw_rate: float
+) -> Any:
+    """nav_msgs/Odometry of one ego pose (4, 4), its velocity (3,) in the ego frame [m/s] and yaw rate [rad/s]."""
+    linear = message(names.VECTOR3, x=float(velocity[0]), y=float(velocity[1]), z=float(velocity[2]))
+    angular = message(names.VECTOR3, x=0.0, y=0.0, z=float(yaw_rate))
+    return message(
+        names.ODOMETRY,
+        header=header_msg(stamp_ns, world_frame),
+        child_frame_id=ego_frame,
+        pose=message("geometry_msgs/msg/PoseWithCovariance", pose=pose_msg(pose), covariance=np.zeros(36)),
+        twist=message(
+            "geometry_msgs/msg/TwistWithCovariance",
+            twist=message("geometry_msgs/msg/Twist", linear=linear, angular=angular),
+            covariance=np.zeros(36),
+        ),
+    )
+
+
 def odometry_msgs(ego: EgoTrajectory, world_frame: str, ego_frame: str) -> list[Any]:
     """nav_msgs/Odometry of every ego pose; the twist (in the ego frame) by finite differences."""
     poses = ego.poses
     times_s = (ego.stamps_ns - ego.stamps_ns[0]) * 1e-9
     velocity_world = _gradient(poses[:, :3, 3], times_s)
     yaw_rate = _gradient(np.unwrap(ego.yaws), times_s)
-    result = []
-    for index, stamp in enumerate(ego.stamps_ns.tolist()):
-        pose = poses[index]
-        velocity = pose[:3, :3].T @ velocity_world[index]  # twist is in the child (ego) frame
-        linear = message(names.VECTOR3, x=float(velocity[0]), y=float(velocity[1]), z=float(velocity[2]))
-        angular = message(names.VECTOR3, x=0.0, y=0.0, z=float(yaw_rate[index]))
-        result.append(
-            message(
-                names.ODOMETRY,
-                header=header_msg(stamp, world_frame),
-                child_frame_id=ego_frame,
-                pose=message("geometry_msgs/msg/PoseWithCovariance", pose=pose_msg(pose), covariance=np.zeros(36)),
-                twist=message(
-                    "geometry_msgs/msg/TwistWithCovariance",
-                    twist=message("geometry_msgs/msg/Twist", linear=linear, angular=angular),
-                    covariance=np.zeros(36),
-                ),
-            )
-        )
-    return result
+    velocity_ego = np.einsum("kji,kj->ki", poses[:, :3, :3], velocity_world)  # twist is in the child (ego) frame
+    return [
+        odometry_msg(stamp, world_frame, ego_frame, poses[index], velocity_ego[index], float(yaw_rate[index]))
+        for index, stamp in enumerate(ego.stamps_ns.tolist())
+    ]
 
 
 def odometry_pose(odometry: Any, what: str) -> FloatArray:

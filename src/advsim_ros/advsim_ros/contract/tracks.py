@@ -16,6 +16,7 @@ import numpy as np
 
 from advsim_ros.contract import codec, names
 from advsim_ros.contract.codec import NS_PER_S, ContractError, header_msg, message, stamp_ns
+from advsim_ros.core.closed_loop import ExecutedTrajectory
 from advsim_ros.core.feasibility import PerturbedTrajectory
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray
 
@@ -81,6 +82,29 @@ class TrackRecord:
             curvature=trajectory.curvature,
             acceleration=trajectory.accel,
         )
+
+    @staticmethod
+    def from_executed(executed: ExecutedTrajectory, size: FloatArray, wheelbase: float, offset_ns: int) -> TrackRecord:
+        """What the ego drove in closed loop (the Episode's executed track), stamps shifted by +offset_ns."""
+        states = executed.states
+        return TrackRecord(
+            actor_id="ego",
+            actor_class=ActorClass.VEHICLE,
+            size=size,
+            confidence=1.0,
+            stamps_ns=executed.stamps_ns + offset_ns,
+            xyz=np.column_stack([states[:, :2], np.zeros(states.shape[0])]),
+            yaw=states[:, 2],
+            velocity=states[:, 3],
+            curvature=np.tan(states[:, 5]) / wheelbase,
+            acceleration=states[:, 4],
+        )
+
+    def to_executed(self, wheelbase: float, offset_ns: int) -> ExecutedTrajectory:
+        """The inverse of from_executed, stamps shifted by -offset_ns (the plans are not carried)."""
+        steer = np.arctan(self.curvature * wheelbase)
+        states = np.column_stack([self.xyz[:, :2], self.yaw, self.velocity, self.acceleration, steer])
+        return ExecutedTrajectory(self.stamps_ns - offset_ns, states, ())
 
     def to_actor_track(self) -> ActorTrack:
         return ActorTrack(

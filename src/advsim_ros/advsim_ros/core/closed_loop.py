@@ -151,6 +151,28 @@ def control_step(state: VehicleState, plan: Plan, now_ns: int, config: Controlle
 Planner = Callable[[int, VehicleState], Plan]  # (now [ns], the ego's state) -> the stack's plan
 
 
+def initial_state(world_T_ego: FloatArray, speed: float, yaw_rate: float, config: ControllerConfig) -> VehicleState:
+    """The ego at the decision frame as the controller takes it over: the logged pose, speed and the steer
+    that gives the logged yaw rate (within the steering limit), no acceleration commanded yet."""
+    yaw = float(np.arctan2(world_T_ego[1, 0], world_T_ego[0, 0]))
+    steer = float(np.arctan2(yaw_rate * config.wheelbase, max(speed, 0.1)))
+    return VehicleState(
+        float(world_T_ego[0, 3]), float(world_T_ego[1, 3]), yaw, max(float(speed), 0.0), 0.0,
+        float(np.clip(steer, -config.max_steer, config.max_steer)),
+    )  # fmt: skip
+
+
+def executed_as_plan(executed: ExecutedTrajectory, start_ns: int, step_ns: int, horizon_ns: int) -> Plan:
+    """What the ego drove, sampled like a plan (start + step, ..., start + horizon), for the plan metrics."""
+    stamps = start_ns + step_ns * np.arange(1, horizon_ns // step_ns + 1, dtype=np.int64)
+    stamps = stamps[stamps <= executed.stamps_ns[-1]]
+    times = executed.stamps_ns.astype(np.float64)
+    x = np.interp(stamps, times, executed.states[:, 0])
+    y = np.interp(stamps, times, executed.states[:, 1])
+    yaws = np.interp(stamps, times, np.unwrap(executed.states[:, 2]))
+    return Plan(stamps_ns=stamps, xy=np.column_stack([x, y]), yaws=yaws)
+
+
 def drive_closed_loop(
     initial: VehicleState,
     planner: Planner,

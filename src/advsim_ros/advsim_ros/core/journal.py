@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.closed_loop import ExecutedTrajectory
 from advsim_ros.core.types import ActorClass, ActorTrack, Plan, ScenarioError
 
 JOURNAL_VERSION = 1
@@ -70,6 +71,19 @@ def _plan_json(plan: Plan | None) -> dict[str, Any] | None:
     return {"stamps_ns": plan.stamps_ns.tolist(), "xy": plan.xy.tolist(), "yaws": plan.yaws.tolist()}
 
 
+def _executed_json(executed: ExecutedTrajectory | None) -> dict[str, Any] | None:
+    if executed is None:
+        return None
+    return {"stamps_ns": executed.stamps_ns.tolist(), "states": executed.states.tolist()}
+
+
+def _executed_from_json(values: Mapping[str, Any] | None) -> ExecutedTrajectory | None:
+    if values is None:
+        return None
+    states = np.array(values["states"], dtype=np.float64).reshape(-1, 6)
+    return ExecutedTrajectory(np.array(values["stamps_ns"], dtype=np.int64), states, ())
+
+
 def _plan_from_json(values: Mapping[str, Any] | None) -> Plan | None:
     if values is None:
         return None
@@ -91,6 +105,7 @@ class QueryRecord:
     score: Mapping[str, Any]  # the QueryScore as a JSON object (contract.protocol.ScoreRecord.as_dict)
     tracks: tuple[ActorTrack, ...] = ()  # the perturbed actors' trajectories (log time)
     plan: Plan | None = None  # the stack's plan of the decision frame (log time), None when it gave none
+    executed: ExecutedTrajectory | None = None  # closed loop: what the ego drove (log time; plans not kept)
 
     @property
     def ok(self) -> bool:
@@ -111,6 +126,7 @@ class QueryRecord:
             "score": dict(self.score),
             "tracks": [_track_json(track) for track in self.tracks],
             "plan": _plan_json(self.plan),
+            **({"executed": _executed_json(self.executed)} if self.executed is not None else {}),
         }
 
     @staticmethod
@@ -123,6 +139,7 @@ class QueryRecord:
             score=dict(values["score"]),
             tracks=tuple(_track_from_json(track) for track in values.get("tracks", ())),
             plan=_plan_from_json(values.get("plan")),
+            executed=_executed_from_json(values.get("executed")),
         )
 
 

@@ -11,16 +11,21 @@ from __future__ import annotations
 
 import queue
 import threading
+from typing import Any
 
+import numpy as np
 import rclpy
 
 from advsim_ros.contract import codec, topics
 from advsim_ros.contract.protocol import episode_msg, frame_request_msg
 from advsim_ros.contract.scenario import road_map_msg, scenario_info_msg
-from advsim_ros.contract.spatial import odometry_msgs, tf_message
+from advsim_ros.contract.spatial import odometry_msg, odometry_msgs, tf_message
+from advsim_ros.core.closed_loop import ControllerConfig, initial_state, yaw_rate_of
+from advsim_ros.core.types import Scenario
 from advsim_ros.io.bag.write import sensor_frame_of
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros import lockstep
+from advsim_ros.ros.closed_loop import ClosedLoopSetup, loop_frames
 from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config
 
@@ -29,6 +34,7 @@ class ScenarioPlayer(ScenarioNode):
     def __init__(self) -> None:
         super().__init__("scenario_player")
         self.config = declare_config(self, lockstep.PlayerConfig)
+        self.controller = declare_config(self, ControllerConfig, "controller.")  # closed loop
         scenario, self.clock = self.load_scenario(load_sweeps=False)
         bag = self.bag_config
         frames = self.window.frame_indices(scenario.num_frames)
@@ -47,6 +53,7 @@ class ScenarioPlayer(ScenarioNode):
         ]
         if scenario.road_map is not None:
             self.latched.append(self.latch(topics.MAP, road_map_msg(scenario.road_map, first, bag.world_frame)))
+        self.closed_loop = self._closed_loop_setup(scenario, frames, odometry) if self.config.loop == "closed" else None
         publish_episode = self.publisher(topics.EPISODE)
         publish_request = self.publisher(topics.FRAME_REQUEST)
         self.outputs = lockstep.Outputs(
@@ -58,6 +65,16 @@ class ScenarioPlayer(ScenarioNode):
             episode=lambda e, d, p: publish_episode(episode_msg(e, self.run_id, d, p)),
             tf_message=lambda stamp, pose: tf_message(stamp, bag.world_frame, bag.ego_frame, pose),
             trace=self.trace,
+            odometry_of=lambda stamp, pose, state: codec.encode(
+                odometry_msg(
+                    stamp,
+                    bag.world_frame,
+                    bag.ego_frame,
+                    pose,
+                    np.array([state.speed, 0.0, 0.0]),
+                    yaw_rate_of(state.speed, state.steer, self.controller.wheelbase),
+                )
+            ),
         )
         arrivals = [lockstep.StampedArrivals() for _ in range(4)]
         self.inputs = lockstep.Inputs(*arrivals)
@@ -75,6 +92,24 @@ class ScenarioPlayer(ScenarioNode):
         self._driver = threading.Thread(target=self._drive, name="replay", daemon=True)
         self._driver.start()
         self.get_logger().info(f"ready: {len(self.history)} history frames from log frame {frames.start}")
+
+    def _closed_loop_setup(self, scenario: Scenario, frames: range, odometry: list[Any]) -> ClosedLoopSetup:
+        """The drive after the decision: from the logged ego there, over the window's future frames."""
+        decision = frames.start + self.window.decision_index
+        logged = odometry[decision].twist.twist
+        start = initial_state(
+            scenario.ego.poses[decision], float(np.hypot(logged.linear.x, logged.linear.y)), logged.angular.z,
+            self.controller,
+        )  # fmt: skip
+        stamps = scenario.frame_stamps_ns
+        return ClosedLoopSetup(
+            controller=self.controller,
+            start=start,
+            decision_stamp_ns=int(stamps[decision]),
+            frames=loop_frames(stamps, scenario.ego.poses, range(decision + 1, frames.stop - 1)),  # 5 s
+            period_s=self.window.frame_period,
+            ego_size=scenario.ego_geometry.size,
+        )
 
     def destroy_node(self) -> None:
         self._stop.set()
@@ -100,7 +135,7 @@ class ScenarioPlayer(ScenarioNode):
                 )
                 lockstep.replay_query(
                     query_id, self.history, self.clock, self.config, self.outputs, self.inputs, self.liveness,
-                    stack_outputs, self._stop,
+                    stack_outputs, self._stop, self.closed_loop,
                 )  # fmt: skip
             except Exception:
                 if self._stop.is_set() or not rclpy.ok():  # shutting down: the graph API is gone

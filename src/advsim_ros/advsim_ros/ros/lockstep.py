@@ -23,9 +23,13 @@ from rclpy.node import Node
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.digests import InputDigest, PlanDigest
 from advsim_ros.contract.enums import Outcome, Phase
+from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.contract.protocol import EpisodeRecord, FrameRequestRecord
+from advsim_ros.contract.tracks import TrackRecord
+from advsim_ros.core.closed_loop import VehicleState
 from advsim_ros.core.episode import EpisodeClock
 from advsim_ros.core.types import FloatArray, ScenarioError
+from advsim_ros.ros.closed_loop import LOOPS, ClosedLoopSetup, LoopCounts, LoopFrame, close_loop
 
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
@@ -212,6 +216,7 @@ class PlayerConfig:
     prefetch_frames: int = 3  # frames lidar_resim renders ahead of the one the stack is planning from
     settle_time: float = 1.0  # how long a new connection to the stack must hold before a query starts [s]
     stack_topics: tuple[str, ...] = ()  # CONTRACT:=STACK: topics the stack keeps its own names for (stack_adapter)
+    loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the plans (closed_loop)
     clock_step: float = 0.0  # > 0: a stack planning on its own timer; /clock advances in these steps [s]
     real_time_factor: float = 1.0  # clock_step > 0: simulated seconds per wall-clock second while stepping
 
@@ -221,6 +226,8 @@ class PlayerConfig:
                 raise ScenarioError(f"/scenario_player {name}: must be positive, got {getattr(self, name)}")
         if self.clock_step < 0.0:
             raise ScenarioError(f"/scenario_player clock_step: must be >= 0, got {self.clock_step}")
+        if self.loop not in LOOPS:
+            raise ScenarioError(f"/scenario_player loop: one of {', '.join(LOOPS)}, got {self.loop!r}")
         if self.prefetch_frames < 1:
             raise ScenarioError(f"/scenario_player prefetch_frames: must be >= 1, got {self.prefetch_frames}")
         StackNames.from_pairs(self.stack_topics)  # refused here, with the pair named, when malformed
@@ -238,6 +245,7 @@ class Outputs:
     episode: Callable[[EpisodeRecord, Any, Any], None]  # record, detections, predictions (decoded or None)
     tf_message: Callable[[int, FloatArray], Any]  # sim stamp, world_T_ego -> tf2_msgs/TFMessage
     trace: Callable[[str, int, int], None]  # event, query, frame (ros.trace)
+    odometry_of: Callable[[int, FloatArray, VehicleState], bytes] | None = None  # closed loop: the simulated ego's
 
 
 @dataclass
@@ -260,8 +268,12 @@ def replay_query(
     liveness: StackLiveness,
     stack_outputs: tuple[bool, bool],
     stop: threading.Event,
+    closed_loop: ClosedLoopSetup | None = None,
 ) -> EpisodeRecord:
     """Replay one query's history in lock-step; returns (and publishes) its Episode DONE.
+
+    With ``closed_loop`` (and a decision plan), the ego then drives the stack's plans for the
+    horizon (ros.closed_loop): the Episode DONE also carries what it drove.
 
     ``stack_outputs``: whether the stack publishes detections and predictions; then those of
     the decision frame are awaited too, so whether a query has them never depends on timing.
@@ -335,6 +347,16 @@ def replay_query(
                         answers[kind] = None if found is None else codec.decode(found, names.ACTOR_TRACK_ARRAY)
         phase = Phase.DECISION if decision else Phase.REPLAY
         outputs.episode(EpisodeRecord(query_id, phase, index, count, segment, delivered, received), None, None)
+    executed = None
+    if closed_loop is not None and decision_plan is not None and not liveness.check() and not stop.is_set():
+        executed, loop_counts = _drive(query_id, count, closed_loop, decision_plan, history[-1], clock, config,
+                                       outputs, inputs, stack_gone, (inputs_digest, plans_digest), stop)  # fmt: skip
+        delivered, received, awaited = (
+            delivered + loop_counts.delivered,
+            received + loop_counts.received,
+            awaited + loop_counts.awaited,
+        )
+        count += len(closed_loop.frames)
     liveness.check()
     if liveness.lost:
         outcome = Outcome.STACK_LOST
@@ -344,7 +366,7 @@ def replay_query(
         outcome = Outcome.COMPLETE
     done = EpisodeRecord(
         query_id, Phase.DONE, count - 1, count, segment, delivered, received, outcome,
-        inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan,
+        inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan, executed=executed,
     )  # fmt: skip
     outputs.episode(done, answers["detections"], answers["predictions"])
     outputs.trace("done_sent", query_id, -1)
@@ -379,3 +401,51 @@ def _stepped_wait(
         now += step_ns
         outputs.clock(codec.clock_cdr(now))
     return None
+
+
+def _drive(
+    query_id: int,
+    history_count: int,
+    setup: ClosedLoopSetup,
+    decision_plan: Any,
+    decision: HistoryFrame,
+    clock: EpisodeClock,
+    config: PlayerConfig,
+    outputs: Outputs,
+    inputs: Inputs,
+    stack_gone: Callable[[], bool],
+    digests: tuple[InputDigest, PlanDigest],
+    stop: threading.Event,
+) -> tuple[TrackRecord, LoopCounts]:
+    """The closed loop after the decision: each frame's sweep from the simulated pose, the plan back."""
+    inputs_digest, plans_digest = digests
+    odometry_of = outputs.odometry_of
+    if odometry_of is None:
+        raise ScenarioError("closed loop: the player has no odometry builder for the simulated ego")
+
+    def exchange(
+        frame_index: int, sim: int, frame: LoopFrame, world_T_ego: FloatArray, state: VehicleState
+    ) -> tuple[bool, bytes | None]:
+        outputs.frame_request(FrameRequestRecord(query_id, frame_index, frame.log_frame, sim, world_T_ego))
+        sweep = inputs.sweeps.wait(sim, config.sweep_timeout, stop.is_set)
+        odometry = odometry_of(sim, world_T_ego, state)
+        outputs.clock(codec.clock_cdr(sim))
+        outputs.tf(outputs.tf_message(sim, world_T_ego))
+        outputs.odometry(odometry)
+        inputs_digest.frame(frame.log_stamp_ns, odometry, world_T_ego)
+        if sweep is None:
+            return False, None
+        outputs.lidar(sweep)
+        outputs.trace("sweep_sent", query_id, frame_index)
+        inputs_digest.sweep(sweep)
+        plan = inputs.plans.wait(sim, config.plan_timeout, stack_gone)
+        if plan is not None:
+            outputs.trace("plan_seen", query_id, frame_index)
+            plans_digest.plan(codec.decode(plan, names.PATH), sim - frame.log_stamp_ns)
+        return True, plan
+
+    offset = clock.to_sim(query_id, decision.log_stamp_ns) - decision.log_stamp_ns
+    plan = plan_from_path(decision_plan, offset)
+    executed, counts = close_loop(query_id, history_count, setup, plan, clock, exchange)
+    track = TrackRecord.from_executed(executed, setup.ego_size, setup.controller.wheelbase, offset)
+    return track, counts

@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract.codec import ContractError, stamp_ns
 from advsim_ros.contract.enums import Outcome, Status
-from advsim_ros.contract.plan import plan_from_path
+from advsim_ros.contract.plan import PLAN_STEP_NS, plan_from_path
 from advsim_ros.contract.protocol import EpisodeRecord, ScoreRecord
 from advsim_ros.contract.tracks import TrackArrayRecord
+from advsim_ros.core.closed_loop import ControllerConfig, executed_as_plan, executed_metrics
 from advsim_ros.core.episode import EpisodeClock
-from advsim_ros.core.metrics import Predictions
+from advsim_ros.core.metrics import Predictions, actor_futures_at
 from advsim_ros.core.objective import ScorerSettings
-from advsim_ros.core.scoring import Detections, evaluate_query
-from advsim_ros.core.types import ActorTrack, DrivableArea, Scenario, ScenarioError
+from advsim_ros.core.scoring import Detections, QueryEvaluation, evaluate_query
+from advsim_ros.core.types import ActorTrack, DrivableArea, Scenario, ScenarioError, replace_actors
 
 
 def _detections(record: TrackArrayRecord | None) -> Detections | None:
@@ -66,16 +68,32 @@ def score_episode(
         return ScoreRecord(query_id, Status.STACK_TIMEOUT, reason, **common)
     decision_log = int(scenario.frame_stamps_ns[decision_frame])
     offset = clock.to_sim(query_id, decision_log) - decision_log
+    detections, predictions = _detections(episode.detections), _predictions(episode.predictions, offset)
     try:
         if stamp_ns(episode.decision_plan.header.stamp) != decision_log + offset:
             raise ContractError("the decision plan is not stamped with the decision sweep's stamp")
         plan = plan_from_path(episode.decision_plan, offset)
-        evaluation = evaluate_query(
-            plan, scenario, moved, decision_frame, settings, drivable,
-            _detections(episode.detections), _predictions(episode.predictions, offset),
-        )  # fmt: skip
+        evaluation = evaluate_query(plan, scenario, moved, decision_frame, settings, drivable, detections, predictions)
     except ScenarioError as error:
         return ScoreRecord(query_id, Status.STACK_ERROR, f"unusable plan: {error}", **common)
+    if episode.executed is None:
+        return _score(query_id, evaluation, common)
+    # closed loop: what the ego drove is scored like a plan; the decision plan's open-loop figures beside it
+    executed = episode.executed.to_executed(ControllerConfig().wheelbase, offset)
+    horizon_ns = int(executed.stamps_ns[-1] - decision_log)
+    driven = executed_as_plan(executed, decision_log, PLAN_STEP_NS, horizon_ns)
+    drove = evaluate_query(driven, scenario, moved, decision_frame, settings, drivable, detections, predictions)
+    actors = replace_actors(scenario.actors, moved)
+    loop = executed_metrics(executed, actor_futures_at(actors, executed.stamps_ns), scenario.ego_geometry)
+    return _score(
+        query_id, drove, common, loop="closed",
+        open_loop_adversarial_loss=evaluation.terms.value,
+        open_loop_collision_5s=evaluation.metrics.at("collision", 5.0),
+        min_distance=loop.min_distance, min_time_to_collision=loop.min_time_to_collision, progress=loop.progress,
+    )  # fmt: skip
+
+
+def _score(query_id: int, evaluation: QueryEvaluation, common: dict[str, Any], **extra: Any) -> ScoreRecord:
     terms, metrics = evaluation.terms, evaluation.metrics
     return ScoreRecord(
         query_id,
@@ -94,4 +112,5 @@ def score_episode(
         prediction_l2_3s=metrics.at("prediction_l2", 3.0),
         prediction_l2_5s=metrics.at("prediction_l2", 5.0),
         **common,
+        **extra,
     )

@@ -23,6 +23,7 @@ from advsim_ros.core.closed_loop import (
     VehicleState,
     drive_closed_loop,
     executed_metrics,
+    initial_state,
     yaw_rate_of,
 )
 from advsim_ros.core.lidar.boxes import yaw_pose
@@ -85,12 +86,7 @@ def closed_loop_episode(
         motion = EgoMotion(speed=state.speed, yaw_rate=yaw_rate, acceleration=state.accel)
         return stack.step(StackFrame(now_ns, points_xyz(points), world_T_ego, scenario.ego_T_sensor, motion)).plan
 
-    yaw = float(np.arctan2(frame.world_T_ego[1, 0], frame.world_T_ego[0, 0]))
-    steer = float(np.arctan2(frame.motion.yaw_rate * controller.wheelbase, max(frame.motion.speed, 0.1)))
-    start = VehicleState(
-        float(frame.world_T_ego[0, 3]), float(frame.world_T_ego[1, 3]), yaw, frame.motion.speed, 0.0,
-        float(np.clip(steer, -controller.max_steer, controller.max_steer)),
-    )  # fmt: skip
+    start = initial_state(frame.world_T_ego, frame.motion.speed, frame.motion.yaw_rate, controller)
     executed = drive_closed_loop(start, planner, decision_ns, horizon_s, period_ns / NS_PER_S, controller)
     actors = scenario.actors
     metrics = executed_metrics(executed, actor_futures_at(actors, executed.stamps_ns), scenario.ego_geometry)

@@ -1,0 +1,114 @@
+"""Closed loop in the graph: after the decision, the ego drives the stack's plans and the stack sees where it is.
+
+The player runs ``core.closed_loop.drive_closed_loop`` with a planner that is the lock-step
+exchange with the stack: at every frame after the decision the controller's state is the ego's
+pose; lidar_resim is asked for that frame's sweep *from that pose* (FrameRequest.world_T_ego),
+/clock, /tf and /ego/odom come from the simulated ego, and the stack's answer is the plan the
+controller tracks until the next frame. A frame whose plan does not come keeps the previous plan
+(counted as missing). Everything sent and answered goes into the query's digests, as in the
+history.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from advsim_ros.contract import codec, names
+from advsim_ros.contract.plan import plan_from_path
+from advsim_ros.core.closed_loop import (
+    ControllerConfig,
+    ExecutedTrajectory,
+    VehicleState,
+    drive_closed_loop,
+    yaw_rate_of,
+)
+from advsim_ros.core.episode import EpisodeClock
+from advsim_ros.core.lidar.boxes import yaw_pose
+from advsim_ros.core.types import FloatArray, Plan, ScenarioError
+
+LOOPS = ("open", "closed")
+
+
+@dataclass(frozen=True, eq=False)
+class LoopFrame:
+    """A frame after the decision, as the closed loop replays it."""
+
+    log_frame: int  # index in the log
+    log_stamp_ns: int
+    logged_world_T_ego: FloatArray  # (4, 4) where the ego was in the log (its height is kept)
+
+
+@dataclass(frozen=True, eq=False)
+class ClosedLoopSetup:
+    """What the player needs to close the loop of one window (the same for every query)."""
+
+    controller: ControllerConfig
+    start: VehicleState  # the ego at the decision frame, as logged
+    decision_stamp_ns: int  # log time
+    frames: Sequence[LoopFrame]  # the frames the stack replans from after the decision, in order
+    period_s: float  # frame period: one sweep, one replan [s]
+    ego_size: FloatArray  # (3,) the ego's box: length, width, height [m]
+
+    @property
+    def horizon_s(self) -> float:
+        """The drive lasts one frame beyond the last replan."""
+        return (len(self.frames) + 1) * self.period_s
+
+
+@dataclass
+class LoopCounts:
+    delivered: int = 0  # sweeps sent
+    received: int = 0  # plans back
+    awaited: int = 0
+
+
+def close_loop(
+    query_id: int,
+    first_index: int,
+    setup: ClosedLoopSetup,
+    decision_plan: Plan,
+    clock: EpisodeClock,
+    exchange: Callable[[int, int, LoopFrame, FloatArray, VehicleState], tuple[bool, bytes | None]],
+) -> tuple[ExecutedTrajectory, LoopCounts]:
+    """Drive the window's horizon from the decision; ``exchange`` sends one frame and waits for the plan.
+
+    ``exchange(frame_index, sim_stamp, frame, world_T_ego, state)`` returns (sweep sent, plan CDR or None).
+    Plans are taken into log time with the query's clock offset.
+    """
+    counts = LoopCounts()
+    current = [decision_plan]
+    by_stamp = {frame.log_stamp_ns: (index, frame) for index, frame in enumerate(setup.frames)}
+
+    def planner(now_ns: int, state: VehicleState) -> Plan:
+        if now_ns == setup.decision_stamp_ns:
+            return decision_plan
+        if now_ns not in by_stamp:
+            raise ScenarioError(f"closed loop: no log frame at {now_ns} ns (frame period and control period disagree)")
+        index, frame = by_stamp[now_ns]
+        world_T_ego = yaw_pose([state.x, state.y, float(frame.logged_world_T_ego[2, 3])], state.yaw)
+        sim = clock.to_sim(query_id, now_ns)
+        sent, answer = exchange(first_index + index, sim, frame, world_T_ego, state)
+        counts.delivered += int(sent)
+        counts.awaited += 1
+        if answer is not None:
+            counts.received += 1
+            current[0] = plan_from_path(codec.decode(answer, names.PATH), sim - now_ns)
+        return current[0]
+
+    executed = drive_closed_loop(
+        setup.start, planner, setup.decision_stamp_ns, setup.horizon_s, setup.period_s, setup.controller
+    )
+    return executed, counts
+
+
+def odometry_state(state: VehicleState, config: ControllerConfig) -> tuple[float, float]:
+    """(speed [m/s], yaw rate [rad/s]) of the simulated ego, for its odometry."""
+    return state.speed, yaw_rate_of(state.speed, state.steer, config.wheelbase)
+
+
+def loop_frames(stamps_ns: Sequence[int], poses: FloatArray, frames: range) -> list[LoopFrame]:
+    """LoopFrames of these log frames."""
+    return [LoopFrame(i, int(stamps_ns[i]), np.asarray(poses[i])) for i in frames]
