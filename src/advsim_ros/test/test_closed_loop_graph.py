@@ -1,9 +1,11 @@
 """Closed loop in the attack graph: the ego drives the stack's plans and every sweep is rendered where it is.
 
-On the braking-lead scene the lane-keeping reference stack's decision plan runs into the lead
-(open loop, the paper's score), while the ego that replans every 0.1 s from sweeps rendered at its
-actual pose is scored on what it drove; both are in the same score. The executed trajectory keeps
-to the controller's limits, and the same query drives the same way twice.
+On the braking-lead scene a stack that keeps a gap to what it sees ahead (processes/
+gap_keeping_stack.py) plans, before the lead brakes, to keep its speed: open loop (the paper's
+score) that plan runs into the lead. Closed loop, replanning every 0.1 s from sweeps rendered at
+the ego's actual pose, it brakes when the gap closes and stops short of the lead; both figures are
+in the same score. The executed trajectory keeps to the controller's limits, and the same query
+drives the same way twice.
 """
 
 from __future__ import annotations
@@ -21,25 +23,15 @@ import yaml
 
 from advsim_ros.core.closed_loop import ControllerConfig
 
-PARAMS = Path(__file__).resolve().parents[3] / "params"
+PROCESSES = Path(__file__).resolve().parent / "processes"
 
 
-def _lane_keeping_profile(folder: Path) -> Path:
-    """The modular reference stack planning in its lane only (no swerving around the lead)."""
-    overrides = folder / "lane_keeping.yaml"
-    planner = {"planner": {"lateral_offsets": [0.0]}}
-    overrides.write_text(yaml.safe_dump({"/modular_stack": {"ros__parameters": planner}}))
+def _gap_keeping_profile(folder: Path) -> Path:
     profile = {
-        "name": "lane_keeping",
-        "processes": [
-            {
-                "name": "modular_stack",
-                "command": "$ADVSIM_PYTHON -m advsim_ros.stacks.modular.node",
-                "params_files": [str(PARAMS / "stack_modular.yaml"), str(overrides)],
-            }
-        ],
+        "name": "gap_keeping",
+        "processes": [{"name": "gap_keeping_stack", "command": f"$ADVSIM_PYTHON {PROCESSES / 'gap_keeping_stack.py'}"}],
     }
-    path = folder / "lane_keeping_profile.yaml"
+    path = folder / "gap_keeping.yaml"
     path.write_text(yaml.safe_dump(profile))
     return path
 
@@ -59,16 +51,19 @@ def _replay(bag: Path, out: Path, profile: Path, loop: str, runs: int) -> dict[s
 def test_the_ego_drives_the_stacks_plans_and_what_it_drove_is_scored_beside_the_decision_plan(
     lead_brake_bag: Path, tmp_path: Path
 ) -> None:
-    profile = _lane_keeping_profile(tmp_path)
+    profile = _gap_keeping_profile(tmp_path)
     opened = _replay(lead_brake_bag, tmp_path / "open", profile, "open", 1)
     closed = _replay(lead_brake_bag, tmp_path / "closed", profile, "closed", 2)
     open_score = opened["queries"][0]["score"]
     first, second = (query["score"] for query in closed["queries"])
     assert open_score["loop"] == "open"
     assert first["loop"] == "closed"
-    # the decision plan is the same either way, and open loop it runs into the braking lead
+    # the decision plan is the same either way, and open loop it runs into the braking lead ...
     assert first["open_loop_collision_5s"] == open_score["collision_5s"] == 1.0
     assert first["open_loop_adversarial_loss"] == pytest.approx(open_score["adversarial_loss"])
+    # ... while the ego that replans brakes in time and stops short of it
+    assert first["collision_5s"] == 0.0
+    assert first["min_distance"] > 1.0
     # closed loop the stack saw 10 history sweeps and then one per 0.1 s for 5 s, and answered each
     assert first["sweeps_delivered"] == first["plans_received"] == 10 + 49
     assert first["progress"] > 0.0

@@ -115,8 +115,15 @@ def control_step(state: VehicleState, plan: Plan, now_ns: int, config: Controlle
     """One control period: steer and accelerate toward the plan within the limits, then integrate."""
     dt = config.control_period
     mid_times, speeds = plan_speeds(plan)
-    wanted_speed = float(np.interp(now_ns / NS_PER_S + config.speed_preview, mid_times, speeds)) if speeds.size else 0.0
-    accel_command = np.clip(config.speed_gain * (wanted_speed - state.speed), -config.max_decel, config.max_accel)
+    now = now_ns / NS_PER_S
+    wanted_speed = float(np.interp(now + config.speed_preview, mid_times, speeds)) if speeds.size else 0.0
+    speed_now = float(np.interp(now, mid_times, speeds)) if speeds.size else 0.0
+    # the plan's own acceleration ahead (feed-forward), plus a correction of the speed error: a P law alone
+    # brakes only gain x preview of what the plan brakes
+    feed_forward = (wanted_speed - speed_now) / config.speed_preview
+    accel_command = np.clip(
+        feed_forward + config.speed_gain * (speed_now - state.speed), -config.max_decel, config.max_accel
+    )
     if wanted_speed < STOP_SPEED and state.speed < STOP_SPEED:
         accel_command = -config.max_decel  # the plan stands: brake to a halt, do not creep up to it
     jerk_step = config.max_jerk * dt

@@ -432,7 +432,7 @@ def _drive(
         outputs.clock(codec.clock_cdr(sim))
         outputs.tf(outputs.tf_message(sim, world_T_ego))
         outputs.odometry(odometry)
-        inputs_digest.frame(frame.log_stamp_ns, odometry, world_T_ego)
+        inputs_digest.frame(frame.log_stamp_ns, codec.restamp(odometry, frame.log_stamp_ns), world_T_ego)
         if sweep is None:
             return False, None
         outputs.lidar(sweep)
