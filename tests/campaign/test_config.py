@@ -59,6 +59,20 @@ def test_every_combination_is_one_attack_with_a_unique_key(bag: Path, tmp_path: 
     assert mine.stack.remappings == {"/planning/trajectory": "/my/plan"}
 
 
+def test_both_loops_double_the_attacks_and_closed_loop_ones_say_so(bag: Path, tmp_path: Path) -> None:
+    campaign = load_campaign(_write(tmp_path, {**_good(bag), "loops": ["open", "closed"]}))
+    plans = expand(campaign)
+    assert len(plans) == 2 * 3 * 2 * 2 * 2 * 2
+    opened = [plan for plan in plans if plan.loop == "open"]
+    closed = [plan for plan in plans if plan.loop == "closed"]
+    assert {plan.key for plan in opened} == {plan.key for plan in expand(load_campaign(_write(tmp_path, _good(bag))))}
+    assert all(plan.key.endswith("-closed") for plan in closed)
+    assert closed[0].options(tmp_path / "c", tmp_path).loop == "closed"
+    assert closed[0].identity()["loop"] == "closed"
+    with pytest.raises(CampaignError, match="loops: expected open, closed or both"):
+        load_campaign(_write(tmp_path, {**_good(bag), "loops": ["sideways"]}))
+
+
 def test_curated_windows_are_the_top_k_by_collision_rate_and_synthetic_logs_are_written(tmp_path: Path) -> None:
     values = {"scenarios": [{"synthetic": {"seed_range": [0, 2]}, "windows": {"curated": 2}}],
               "stacks": ["reference"], "algorithms": {"rs": 3}}  # fmt: skip

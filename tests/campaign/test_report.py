@@ -165,6 +165,21 @@ def test_tables_appear_only_for_the_dimensions_the_campaign_varies(campaign: Any
     assert set(written) == {"results", "markdown", "html", "collision_plot"}  # no transfer.csv, no curves
 
 
+def test_closed_loop_attacks_are_their_stacks_own_rows_with_the_open_loop_rates_beside(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    rows = [_row(rng, f"o{i}", collided=i % 2 == 0, stack="modular") for i in range(4)]
+    for index in range(4):
+        row = _row(rng, f"c{index}", collided=index == 0, stack="modular")
+        row.update(loop="closed", adversarial_open_loop_collision_5s=1.0, adversarial_min_distance=0.5 * index)
+        rows.append(row)
+    markdown = write_report(tmp_path / "loops", rows, [], {}, [])["markdown"].read_text()
+    assert "| modular (closed loop) | adversarial | 4 |" in markdown.split("## Table 1")[1].split("##")[0]
+    loops = markdown.split("## Closed loop against open loop")[1].split("##")[0]
+    # what the ego drove collided in 1 of 4 adversarial scenarios, the plans it made at the decision in all 4
+    assert "| modular (closed loop) | adversarial | 4 | 25.0 [" in loops
+    assert "| 100.0 [100.0, 100.0] | 0.75 [" in loops
+
+
 def test_the_transfer_matrix(campaign: Any) -> None:
     _, written, rows = campaign
     matrix = written["markdown"].read_text().split("## Table 3")[1].split("##")[0]

@@ -12,6 +12,7 @@
     algorithms: {bo: 75, ga: 500}   # algorithm: query budget
     actors: [1]                     # actors perturbed at once (Table 4: [1, 2, 3, 4, 5])
     objectives: [M5]                # M0..M5, closest_distance, max_margin (Table 6)
+    loops: [open]                   # open (the paper's), closed (the ego drives the plans), or both
     seeds: [0]
     reruns: 1                       # re-evaluations of each attack's best query (reproducibility)
     transfer: true                  # replay every found failure on every other stack (Table 3)
@@ -45,7 +46,7 @@ from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.core.types import ScenarioError
 
 TOP_KEYS = (
-    "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "reruns", "transfer", "failure",
+    "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "loops", "reruns", "transfer", "failure",
     "parameters", "plan_timeout",
 )  # fmt: skip
 SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows")
@@ -103,13 +104,14 @@ class AttackPlan:
     reruns: int
     plan_timeout: float
     parameters: Mapping[str, Any] = field(default_factory=dict)
+    loop: str = "open"  # open (the paper's) or closed (the ego drives the stack's plans)
 
     def identity(self) -> dict[str, Any]:
         """The IDENTITY columns of results.csv (and the bag)."""
         return {
             "attack": self.key, "scenario": self.scenario, "window_start": self.window_start, "stack": self.stack,
             "algorithm": self.algorithm, "budget": self.budget, "actors": self.actors, "objective": self.objective,
-            "seed": self.seed, "bag": self.bag,
+            "seed": self.seed, "loop": self.loop, "bag": self.bag,
         }  # fmt: skip
 
     def as_json(self) -> dict[str, Any]:
@@ -128,7 +130,7 @@ class AttackPlan:
             bag=Path(self.bag), out_dir=out_dir, stack=stack_spec(self.stack_entry, config_dir),
             algorithm=self.algorithm, queries=self.budget, actors=self.actors, seed=self.seed,
             window_start_frame=self.window_start, plan_timeout=self.plan_timeout, reruns=self.reruns,
-            parameter_overrides=overrides, visual_report=False,
+            parameter_overrides=overrides, visual_report=False, loop=self.loop,
         )  # fmt: skip
 
 
@@ -144,6 +146,7 @@ class Campaign:
     actors: tuple[int, ...]
     objectives: tuple[str, ...]
     seeds: tuple[int, ...]
+    loops: tuple[str, ...]
     reruns: int
     transfer: bool
     failure: FailureRule
@@ -325,6 +328,10 @@ def load_campaign(path: Path) -> Campaign:
     parameters = values.get("parameters") or {}
     if not isinstance(parameters, dict) or not all(isinstance(v, dict) for v in parameters.values()):
         raise _fail(path, "parameters", "expected {node: {parameter: value}}")
+    loops = values.get("loops", ["open"])
+    loops = loops if isinstance(loops, list) else [loops]
+    if not loops or any(loop not in ("open", "closed") for loop in loops) or len(set(loops)) != len(loops):
+        raise _fail(path, "loops", f"expected open, closed or both, got {values.get('loops')!r}")
     reruns = _int_list(path, "reruns", values.get("reruns", 1), 0)
     plan_timeout = values.get("plan_timeout", 10.0)
     if not isinstance(plan_timeout, (int, float)) or not math.isfinite(plan_timeout) or plan_timeout <= 0:
@@ -338,6 +345,7 @@ def load_campaign(path: Path) -> Campaign:
         actors=_int_list(path, "actors", values.get("actors", [1]), 1),
         objectives=tuple(str(o) for o in objectives),
         seeds=_int_list(path, "seeds", values.get("seeds", [0]), 0),
+        loops=tuple(str(loop) for loop in loops),
         reruns=reruns[0],
         transfer=bool(values.get("transfer", True)),
         failure=FailureRule(bool(failure.get("collision", True)), failure.get("adversarial_loss_above")),
@@ -394,10 +402,12 @@ def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPla
     plans: list[AttackPlan] = []
     for source in campaign.scenarios:
         for start in window_starts(campaign, source, params_dir):
-            for stack, (algorithm, budget), actors, objective, seed in itertools.product(
-                campaign.stacks, campaign.algorithms.items(), campaign.actors, campaign.objectives, campaign.seeds
-            ):
+            for stack, (algorithm, budget), actors, objective, seed, loop in itertools.product(
+                campaign.stacks, campaign.algorithms.items(), campaign.actors, campaign.objectives, campaign.seeds,
+                campaign.loops,
+            ):  # fmt: skip
                 key = f"{source.name}-w{start:04d}-{stack}-{algorithm}{budget}-m{actors}-{objective}-s{seed}"
+                key += "-closed" if loop == "closed" else ""  # open-loop keys as before: their journals resume
                 plans.append(
                     AttackPlan(
                         key=re.sub(r"[^A-Za-z0-9_.-]", "_", key),
@@ -414,6 +424,7 @@ def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPla
                         reruns=campaign.reruns,
                         plan_timeout=campaign.plan_timeout,
                         parameters=campaign.parameters,
+                        loop=loop,
                     )
                 )
     return plans

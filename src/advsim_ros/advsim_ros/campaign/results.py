@@ -22,11 +22,13 @@ METRICS = (
     "l2_human_5s",
     "lateral_acceleration",
     "jerk",
+    "open_loop_collision_5s",  # closed loop: the decision plan's, beside what the ego drove
+    "min_distance",
     "detection_ap",
     "prediction_l2_3s",
     "prediction_l2_5s",
 )
-IDENTITY = ("attack", "scenario", "window_start", "stack", "algorithm", "budget", "actors", "objective", "seed")
+IDENTITY = ("attack", "scenario", "window_start", "stack", "algorithm", "budget", "actors", "objective", "seed", "loop")
 COLUMNS = (
     *IDENTITY,
     "status",  # ok | failed (the attack could not run to its end: see error)
@@ -56,7 +58,7 @@ def attack_row(
     identity: Mapping[str, Any], summary: Mapping[str, Any], cost: Mapping[str, float], out_dir: str
 ) -> dict[str, Any]:
     """The results row of a finished attack from its summary.json and what running it cost."""
-    row: dict[str, Any] = {key: identity[key] for key in IDENTITY}
+    row: dict[str, Any] = {key: identity.get(key, "open") for key in IDENTITY}  # plans of before loops: open
     row["status"] = "ok" if summary.get("adversarial") else "failed"
     for prefix, score in (("original", summary.get("original")), ("adversarial", summary.get("adversarial"))):
         for name in METRICS:
@@ -75,7 +77,7 @@ def attack_row(
 
 def failed_row(identity: Mapping[str, Any], error: str, out_dir: str) -> dict[str, Any]:
     """The row of an attack that could not run to its end (its metrics NaN, the error one line)."""
-    row: dict[str, Any] = {key: identity[key] for key in IDENTITY}
+    row: dict[str, Any] = {key: identity.get(key, "open") for key in IDENTITY}
     row.update({f"{p}_{name}": math.nan for p in ("original", "adversarial") for name in METRICS})
     row.update(status="failed", queries=0, failed_queries=0, flaky=False, wall_s=math.nan, cpu_s=math.nan)
     row.update(peak_rss_mb=math.nan, bag=str(identity["bag"]), out_dir=out_dir, error=error.splitlines()[0][:300])
