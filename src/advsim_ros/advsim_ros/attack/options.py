@@ -217,6 +217,10 @@ class AttackOptions:
             raise ScenarioError("--reruns and --rerun-top must be >= 0, --runs >= 1")
         if self.loop not in ("open", "closed"):
             raise ScenarioError(f"--loop: open or closed, got {self.loop!r}")
+        profile = self.stack.profile
+        if self.loop == "closed" and profile is not None and profile.timing.timer:
+            # the stepped clock answers a sweep after the next one is due: the loop would run time backwards
+            raise ScenarioError("--loop closed: not yet for stacks planning on their own timer (timing.mode timer)")
         for name in ("plan_timeout", "connect_timeout", "startup_timeout", "query_timeout"):
             if not getattr(self, name) > 0:
                 raise ScenarioError(f"{name}: must be positive, got {getattr(self, name)}")
