@@ -262,10 +262,10 @@ class ScoreRecord:
         return self.status == Status.OK
 
     def as_dict(self) -> dict[str, Any]:
-        """For JSON: the status by name, NaN as None."""
+        """For JSON: the status by name, NaN and infinities (no time to collision, no actor) as None."""
         values = dataclasses.asdict(self)
         values["status"] = self.status.label
-        return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in values.items()}
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in values.items()}
 
     @staticmethod
     def from_dict(values: dict[str, Any]) -> ScoreRecord:
