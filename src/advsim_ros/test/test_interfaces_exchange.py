@@ -90,6 +90,12 @@ SAMPLES: dict[str, list[dict]] = {
             "detection_ap": 0.625,
             "prediction_l2_3s": 1.125,
             "prediction_l2_5s": 2.375,
+            "loop": "closed",
+            "open_loop_adversarial_loss": 6.25,
+            "open_loop_collision_5s": 1.0,
+            "min_distance": 0.375,
+            "min_time_to_collision": 1.5,
+            "progress": 31.25,
         }
     ],
     "advsim_msgs/msg/Episode": [
@@ -123,6 +129,8 @@ SAMPLES: dict[str, list[dict]] = {
             "detections": {"header": HEADER, "run_id": 0, "query_id": 0, "tracks": [_track("d")]},
             "has_predictions": True,
             "predictions": {"header": HEADER, "run_id": 0, "query_id": 0, "tracks": [_track("p")]},
+            "has_executed": True,
+            "executed": _track("ego"),
         }
     ],
     "advsim_msgs/msg/FrameRequest": [
