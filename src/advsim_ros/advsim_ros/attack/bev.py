@@ -11,7 +11,7 @@ import numpy as np
 
 from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.geometry import box_corners
-from advsim_ros.core.types import Plan, Scenario
+from advsim_ros.core.types import FloatArray, Plan, Scenario
 
 
 def _number(value: Any) -> str:
@@ -25,8 +25,10 @@ def draw_bev(
     plans: tuple[Plan | None, Plan | None],
     window: WindowConfig,
     summary: dict[str, Any],
+    driven: tuple[FloatArray | None, FloatArray | None] = (None, None),
 ) -> None:
-    """Bird's-eye view, original (left) vs adversarial (right): actors, human trajectory, the stack's plan."""
+    """Bird's-eye view, original (left) vs adversarial (right): actors, human trajectory, the stack's plan,
+    and in closed loop what the ego drove ((K, 2) positions)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -40,10 +42,10 @@ def draw_bev(
     moved_ids = set(summary["perturbed_actors"])
     figure, axes = plt.subplots(1, 2, figsize=(14, 6.5), sharex=True, sharey=True)
     panels = (
-        ("original (logged)", source, summary.get("original"), plans[0]),
-        ("adversarial", adversarial, summary.get("adversarial"), plans[1]),
+        ("original (logged)", source, summary.get("original"), plans[0], driven[0]),
+        ("adversarial", adversarial, summary.get("adversarial"), plans[1], driven[1]),
     )
-    for axis, (title, scenario, score, plan) in zip(axes, panels, strict=True):
+    for axis, (title, scenario, score, plan, drove) in zip(axes, panels, strict=True):
         if scenario is adversarial and adversarial.sweeps:
             sweep = adversarial.sweeps[-1]
             xyz = sweep.xyz[:: max(1, sweep.num_points // 20000)]
@@ -70,12 +72,16 @@ def draw_bev(
         axis.plot(future[:, 0], future[:, 1], color="tab:green", lw=2, label="human trajectory")
         if plan is not None:
             axis.plot(plan.xy[:, 0], plan.xy[:, 1], color="black", lw=2, label="stack plan")
+        if drove is not None:
+            axis.plot(drove[:, 0], drove[:, 1], color="tab:orange", lw=2, label="driven (closed loop)")
         text = (
             "no score"
             if score is None
             else f"L_adv {_number(score.get('adversarial_loss'))}   "
             f"collision@5s {_number(score.get('collision_5s'))}   L2@5s {_number(score.get('l2_human_5s'))} m"
         )
+        if score is not None and score.get("loop") == "closed":
+            text = f"driven: {text}   plan (open loop) collision@5s {_number(score.get('open_loop_collision_5s'))}"
         axis.set_title(f"{title}\n{text}", fontsize=10)
         axis.set_aspect("equal")
         axis.set_xlabel("x [m]")
