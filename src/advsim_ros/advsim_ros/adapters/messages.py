@@ -17,6 +17,7 @@ from advsim_ros.contract import names
 from advsim_ros.contract.codec import NS_PER_S, header_msg, message, stamp_ns
 from advsim_ros.contract.spatial import odometry_pose
 from advsim_ros.contract.tracks import TrackRecord, track_array_from_msg
+from advsim_ros.core.metrics import interpolate_trajectory
 from advsim_ros.core.types import ActorClass
 
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
@@ -253,12 +254,10 @@ def moved(track: TrackRecord, transform: PlanarTransform) -> TrackRecord:
 def on_grid(track: TrackRecord, stamps_ns: Any) -> TrackRecord:
     """The track's positions and headings at these stamps (held before its first and after its last)."""
     stamps = np.asarray(stamps_ns, dtype=np.int64)
-    times = (track.stamps_ns - track.stamps_ns[0]).astype(np.float64)
-    wanted = (stamps - track.stamps_ns[0]).astype(np.float64)
-    xyz = np.column_stack([np.interp(wanted, times, track.xyz[:, axis]) for axis in range(3)])
-    yaw = np.interp(wanted, times, np.unwrap(track.yaw))
+    xy, yaw, _ = interpolate_trajectory(track.stamps_ns, track.xyz[:, :2], track.yaw, stamps)
+    z = np.interp(stamps.astype(np.float64), track.stamps_ns.astype(np.float64), track.xyz[:, 2])
     zeros = np.zeros(stamps.shape[0])
     return TrackRecord(
-        track.actor_id, track.actor_class, track.size, track.confidence, stamps, xyz,
-        np.arctan2(np.sin(yaw), np.cos(yaw)), zeros, zeros, zeros,
+        track.actor_id, track.actor_class, track.size, track.confidence, stamps, np.column_stack([xy, z]),
+        yaw, zeros, zeros, zeros,
     )  # fmt: skip

@@ -29,7 +29,7 @@ import numpy as np
 import pymap3d
 
 from advsim_ros.adapters.profile import Datum, PlanOutput
-from advsim_ros.core.metrics import NS_PER_S
+from advsim_ros.core.metrics import NS_PER_S, interpolate_trajectory
 from advsim_ros.core.types import FloatArray, IntArray, Plan, ScenarioError
 
 
@@ -193,17 +193,6 @@ def timed(poses: Poses, plan_stamp_ns: int) -> FloatArray:
     return _driven_times(arc, np.maximum(poses.speeds, 0.0))
 
 
-def _resample(times: FloatArray, poses: Poses, wanted: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Positions and headings at the wanted times [s]; held before the first and after the last reached pose."""
-    reached = np.isfinite(times)
-    times, xy, yaws = times[reached], poses.xy[reached], np.unwrap(poses.yaws[reached])
-    if times.shape[0] == 1:
-        return np.repeat(xy, wanted.shape[0], axis=0), np.repeat(yaws, wanted.shape[0])
-    x = np.interp(wanted, times, xy[:, 0])
-    y = np.interp(wanted, times, xy[:, 1])
-    return np.column_stack([x, y]), np.interp(wanted, times, yaws)
-
-
 def contract_plan(
     poses: Poses,
     plan_stamp_ns: int,
@@ -218,7 +207,10 @@ def contract_plan(
     wanted = (stamps - plan_stamp_ns).astype(np.float64) / NS_PER_S
     if poses.stamps_ns is None and poses.speeds is None:  # a path and nothing more: the speed rule drives it
         xy, yaws = _along(poses, _rule_distance(wanted, ego_speed, output))
-    else:
-        xy, yaws = _resample(timed(poses, plan_stamp_ns), poses, wanted)
+    else:  # held before the first and after the last pose reached
+        times = timed(poses, plan_stamp_ns)
+        reached = np.isfinite(times)
+        reached_ns = plan_stamp_ns + np.round(times[reached] * NS_PER_S).astype(np.int64)
+        xy, yaws, _ = interpolate_trajectory(reached_ns, poses.xy[reached], poses.yaws[reached], stamps)
     world_xy, world_yaws = transform.apply(xy, yaws)
     return Plan(stamps_ns=stamps, xy=world_xy, yaws=np.arctan2(np.sin(world_yaws), np.cos(world_yaws)))

@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from advsim_ros.core.geometry import box_distance, boxes_overlap, wrap_angle
-from advsim_ros.core.metrics import NS_PER_S, ActorFutures, trajectory_kinematics
+from advsim_ros.core.metrics import NS_PER_S, ActorFutures, interpolate_trajectory, trajectory_kinematics
 from advsim_ros.core.types import EgoGeometry, FloatArray, Plan, ScenarioError
 
 STOP_SPEED = 0.3  # below this, a plan that stands is met by braking to a halt [m/s]
@@ -173,11 +173,8 @@ def executed_as_plan(executed: ExecutedTrajectory, start_ns: int, step_ns: int, 
     """What the ego drove, sampled like a plan (start + step, ..., start + horizon), for the plan metrics."""
     stamps = start_ns + step_ns * np.arange(1, horizon_ns // step_ns + 1, dtype=np.int64)
     stamps = stamps[stamps <= executed.stamps_ns[-1]]
-    times = executed.stamps_ns.astype(np.float64)
-    x = np.interp(stamps, times, executed.states[:, 0])
-    y = np.interp(stamps, times, executed.states[:, 1])
-    yaws = np.interp(stamps, times, np.unwrap(executed.states[:, 2]))
-    return Plan(stamps_ns=stamps, xy=np.column_stack([x, y]), yaws=yaws)
+    xy, yaws, _ = interpolate_trajectory(executed.stamps_ns, executed.xy, executed.yaws, stamps)
+    return Plan(stamps_ns=stamps, xy=xy, yaws=yaws)
 
 
 def drive_closed_loop(

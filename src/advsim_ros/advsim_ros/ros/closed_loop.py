@@ -23,7 +23,6 @@ from advsim_ros.core.closed_loop import (
     ExecutedTrajectory,
     VehicleState,
     drive_closed_loop,
-    yaw_rate_of,
 )
 from advsim_ros.core.episode import EpisodeClock
 from advsim_ros.core.lidar.boxes import yaw_pose
@@ -102,11 +101,6 @@ def close_loop(
         setup.start, planner, setup.decision_stamp_ns, setup.horizon_s, setup.period_s, setup.controller
     )
     return executed, counts
-
-
-def odometry_state(state: VehicleState, config: ControllerConfig) -> tuple[float, float]:
-    """(speed [m/s], yaw rate [rad/s]) of the simulated ego, for its odometry."""
-    return state.speed, yaw_rate_of(state.speed, state.steer, config.wheelbase)
 
 
 def loop_frames(stamps_ns: Sequence[int], poses: FloatArray, frames: range) -> list[LoopFrame]:

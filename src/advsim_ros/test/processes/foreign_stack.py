@@ -22,16 +22,15 @@ import sys
 
 import numpy as np
 import pymap3d
-import rclpy
 from geometry_msgs.msg import Pose, PoseStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import NavSatFix, PointCloud2
 
 from advsim_ros.contract.pointcloud import cloud_to_points
+from advsim_ros.stacks.example import run
 
 LOOKAHEAD = 60.0  # [m]
 SPACING = 1.0  # [m] between path poses
@@ -176,15 +175,8 @@ class ForeignStack(Node):
 
 
 def main() -> None:
-    rclpy.init()
-    node = ForeignStack(sys.argv[1] if len(sys.argv) > 1 and not sys.argv[1].startswith("-") else "gnss")
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    dialect = sys.argv[1] if len(sys.argv) > 1 and not sys.argv[1].startswith("-") else "gnss"
+    run(lambda: ForeignStack(dialect))
 
 
 if __name__ == "__main__":
