@@ -21,6 +21,7 @@ Parameters: ``profile_file`` (the profile as the attack wrote it, JSON), ``run_i
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -40,9 +41,12 @@ from advsim_ros.contract.tracks import track_array_msg
 from advsim_ros.core.metrics import NS_PER_S
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.ros.messages import message_class
+from advsim_ros.ros.qos import profile
 
 NODE_NAME = "stack_adapter"
 KEPT_ODOMETRY = 200
+MATCH_WAIT = 2.0  # longest wait for the stack's readers to match before a message is relayed to them [s]
 
 
 class StackAdapter(GraphNode):
@@ -85,8 +89,10 @@ class StackAdapter(GraphNode):
                 continue
             spec = topics.stack_topic(contract_name)
             theirs = dataclasses.replace(spec, name=stack_name)
-            source, target = (spec, theirs) if spec in topics.STACK_INPUTS else (theirs, spec)
-            self.subscribe(source, self.publisher(target), raw=True, qos=self._read_qos(contract_name, source))
+            to_stack = spec in topics.STACK_INPUTS
+            source, target = (spec, theirs) if to_stack else (theirs, spec)
+            publish = self._to_stack(target) if to_stack else self.publisher(target)
+            self.subscribe(source, publish, raw=True, qos=self._read_qos(contract_name, source))
             self.get_logger().info(f"relaying {source.name} -> {target.name} ({spec.msgtype})")
 
     def _adapt_inputs(self, renamed: dict[str, str]) -> None:
@@ -94,7 +100,7 @@ class StackAdapter(GraphNode):
         self.publish_pose: Any = None
         if pose.type != "odometry" or pose.frame_id or pose.topic != topics.ODOM.name:
             pose_spec = topics.TopicSpec(pose.topic, foreign.POSE_MSGTYPES[pose.type], topics.ODOM.offered)
-            self.publish_pose = self.publisher(pose_spec)
+            self.publish_pose = self._to_stack(pose_spec)
             self.get_logger().info(f"pose: {topics.ODOM.name} -> {pose.topic} ({pose_spec.msgtype})")
         self.subscribe(topics.ODOM, self.on_odometry, raw=True)  # also the ego's speed and the frames' stamps
         self.subscribe(topics.CLOCK, self.on_clock, raw=True)
@@ -106,13 +112,34 @@ class StackAdapter(GraphNode):
         lidar = self.profile.inputs.lidar
         if lidar.frame_id or lidar.also:
             targets = [topic for topic in (lidar.topic, *lidar.also) if topic != topics.LIDAR.name]
-            self.sweep_publishers = [self.publisher(dataclasses.replace(topics.LIDAR, name=t)) for t in targets]
+            self.sweep_publishers = [self._to_stack(dataclasses.replace(topics.LIDAR, name=t)) for t in targets]
             tf_static_name = renamed.get(topics.TF_STATIC.name, topics.TF_STATIC.name)
             self.tf_static_spec = dataclasses.replace(topics.TF_STATIC, name=tf_static_name)
             self.tf_static_publishers: list[Any] = []  # latched: kept alive
             self.subscribe(topics.LIDAR, self.on_sweep, raw=True)
             frame = f" in frame {lidar.frame_id}" if lidar.frame_id else ""
             self.get_logger().info(f"LiDAR: {topics.LIDAR.name} -> {', '.join(targets)}{frame}")
+
+    def _to_stack(self, spec: topics.TopicSpec) -> Callable[[Any], None]:
+        """A publisher to the stack whose first message waits (bounded) for the stack's readers to match.
+
+        The player's readiness sees its own writers matched, not this hop's: a volatile reader of the
+        stack still matching (or not yet discovered here) would lose the first sweep or pose.
+        """
+        publisher = self.create_publisher(message_class(spec.msgtype), spec.name, profile(spec.offered))
+        first = [True]
+
+        def publish(value: Any) -> None:
+            if first[0]:
+                first[0] = False
+                deadline = time.monotonic() + MATCH_WAIT
+                while publisher.get_subscription_count() < max(1, self.count_subscribers(spec.name)):
+                    if time.monotonic() > deadline:
+                        break  # nobody reads it (a renamed topic the stack does not use): never wait again
+                    time.sleep(0.005)  # matching happens on the middleware's threads
+            publisher.publish(value if isinstance(value, bytes) else codec.encode(value))
+
+        return publish
 
     def on_tf(self, raw: bytes) -> None:
         self.tf_edges.update(transforms_of(codec.decode(raw, names.TF_MESSAGE)))
