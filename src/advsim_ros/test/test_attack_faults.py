@@ -155,6 +155,28 @@ def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_r
 
 
 @pytest.mark.slow
+def test_two_evaluation_lanes_measure_what_one_does_and_kill_9_leaves_nothing_of_either(
+    kitti_window_bag: Path,
+    tmp_path: Path,
+    uninterrupted: tuple[str, dict[str, Any]],
+    zombie_shm_segments: Callable[[], int],
+) -> None:
+    stack, reference = uninterrupted
+    out = tmp_path / "lanes"
+    argv = _attack_argv(kitti_window_bag, out, stack, "--lanes", "2")
+    second_lane = out / "run" / "logs" / "lane1" / "graph_nodes.log"
+    # killed once the second lane's graph replays a query: both graphs, both stacks running
+    _kill_9_at(argv, lambda: bool(_started(second_lane, 0)), out, zombie_shm_segments)
+    final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
+    assert final.returncode == 0, final.stderr
+    assert sorted(_journaled(out)) == list(range(QUERIES + 3))  # journaled as they finish, each exactly once
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["search"]["lanes"] == 2
+    assert any(name.startswith("lane1/") for name in summary["resources"]["processes"])
+    assert _measured(summary) == _measured(reference)  # same queries, same scores, same digests
+
+
+@pytest.mark.slow
 def test_a_stray_graph_on_the_same_ros_domain_changes_nothing_in_the_attack(
     kitti_window_bag: Path, tmp_path: Path, uninterrupted: tuple[str, dict[str, Any]]
 ) -> None:

@@ -4,13 +4,17 @@ The loop ends when the search says it is finished (/advsim/search_status) and ev
 asked for is journaled (replay mode: when every requested run is). It fails with one message
 naming the cause when a node of the graph dies, when the stack never connects (with what the
 stack does instead, read from the ROS graph), or when nothing progresses for too long.
+With evaluation lanes (`--lanes K`) it follows every lane's graph the same way; the search and
+its status live in the first.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,17 +36,39 @@ def _log_tail(path: Path, lines: int = 30) -> str:
         return "(no log)"
 
 
+@dataclass(frozen=True)
+class Lane:
+    """One evaluation graph of the attack: its processes, its monitor, its stack."""
+
+    launcher: Launcher
+    monitor: AttackMonitor
+    stack: Sequence[NodeSpec]  # the stack's processes
+    graph: Sequence[NodeSpec]  # the graph's own processes
+
+
+def _progress(lanes: Sequence[Lane], journaled: int) -> dict[str, Any]:
+    """What the progress bar shows, over every lane."""
+    merged = dict(vars(lanes[0].monitor.progress))
+    each = [lane.monitor.progress for lane in lanes]
+    best = [p.best_adversarial_loss for p in each if not math.isnan(p.best_adversarial_loss)]
+    merged.update(
+        scored=sum(p.scored for p in each),
+        failed=sum(p.failed for p in each),
+        best_adversarial_loss=max(best) if best else math.nan,
+        query=max(p.query for p in each),
+        journaled=journaled,
+    )
+    return merged
+
+
 def follow(
     options: AttackOptions,
     checked: Preflight,
-    launcher: Launcher,
-    monitor: AttackMonitor,
-    stack: Sequence[NodeSpec],
-    graph: Sequence[NodeSpec],
+    lanes: Sequence[Lane],
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
 ) -> list[dict[str, Any]]:
-    """Spin the monitor until the attack is over; returns the stack's crashes (query, exit code)."""
+    """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code)."""
     from advsim_ros.attack.run import query_record
 
     clock = checked.window.clock(checked.scenario.frame_stamps_ns.tolist())
@@ -54,67 +80,83 @@ def follow(
         return clock.to_sim(query_id, decision_log) - decision_log
 
     crashes: list[dict[str, Any]] = []
-    graph_names = {spec.name for spec in graph}
-    stack_processes = {spec.name: spec for spec in stack}
+    first = lanes[0]
     replay_next = len(journal.records) if options.replay_only else -1
     connected_once = graph_written = False
     started = last_change = time.monotonic()
     world_frame = checked.bag_config.world_frame
     if options.replay_only and replay_next < options.replay_runs:
-        monitor.request_replay(replay_next, world_frame)
+        first.monitor.request_replay(replay_next, world_frame)
     while True:
-        monitor.spin_once(_POLL)
-        finished = monitor.take_finished()
-        for query in finished:
+        finished = []
+        for lane in lanes:
+            lane.monitor.spin_once(_POLL / len(lanes))
+            finished.extend(lane.monitor.take_finished())
+        for query in sorted(finished, key=lambda query: query.perturbation.query_id):
             journal.append(query_record(query, offset))
-            monitor.node.trace("journaled", query.perturbation.query_id)
+            first.monitor.node.trace("journaled", query.perturbation.query_id)
         if finished:
             last_change = time.monotonic()
             if progress is not None:
-                progress({**vars(monitor.progress), "journaled": len(journal)})
+                progress(_progress(lanes, len(journal)))
             if options.replay_only:
                 replay_next = len(journal.records)
                 if replay_next < options.replay_runs:
-                    monitor.request_replay(replay_next, world_frame)
-        for name, code in launcher.exited().items():
-            if name in graph_names:
-                log = launcher.log_path(name)
-                raise AttackError(f"node {name} exited with code {code}; its log ({log}):\n{_log_tail(log)}")
-            elif name in stack_processes:
-                log = launcher.log_path(name)
-                if not connected_once:
-                    raise AttackError(
-                        f"the stack exited with code {code} before it connected; its log ({log}):\n{_log_tail(log, 10)}"
-                    )
-                crashes.append({"query_id": monitor.progress.query, "exit_code": code})
-                launcher.stop(name)
-                if not options.stack.restart:
-                    raise AttackError(f"the stack exited with code {code} during query {monitor.progress.query}")
-                launcher.start(stack_processes[name])
+                    first.monitor.request_replay(replay_next, world_frame)
+        for lane in lanes:
+            _check_processes(options, lane, connected_once, crashes)
         if options.replay_only and len(journal.records) >= options.replay_runs:
             break
-        if monitor.search_finished and not options.replay_only and monitor.idle():
+        if first.monitor.search_finished and not options.replay_only and all(lane.monitor.idle() for lane in lanes):
             break
         now = time.monotonic()
         if connected_once and not graph_written:  # node names come after the endpoints: wait for them
-            graph_written = _write_stack_graph(options, monitor, final=False)
+            graph_written = _write_stack_graph(options, first.monitor, final=False)
         if not connected_once:
-            connected_once, missing = monitor.stack_connection()
+            connections = [lane.monitor.stack_connection() for lane in lanes]
+            connected_once = all(connected for connected, _ in connections)
             if not connected_once and now - started > options.connect_timeout:
-                _write_stack_graph(options, monitor, final=True)
+                _write_stack_graph(options, first.monitor, final=True)
+                missing = "; ".join(
+                    f"{'' if len(lanes) == 1 else f'lane {index}: '}{text}"
+                    for index, (connected, text) in enumerate(connections)
+                    if not connected
+                )
                 raise AttackError(
                     f"the stack did not connect within {options.connect_timeout:.0f} s: {missing}; "
-                    f"stack log: {launcher.log_path(stack[0].name)}"
+                    f"stack log: {first.launcher.log_path(first.stack[0].name)}"
                 )
         limit = options.startup_timeout if len(journal) == 0 else options.query_timeout
         if now - last_change > limit:
             raise AttackError(
-                f"no query finished for {limit:.0f} s ({len(journal)} journaled); logs in {launcher.log_dir}"
+                f"no query finished for {limit:.0f} s ({len(journal)} journaled); logs in {first.launcher.log_dir}"
             )
     if not graph_written:
-        _write_stack_graph(options, monitor, final=True)
+        _write_stack_graph(options, first.monitor, final=True)
     journal.mark_finished()
     return crashes
+
+
+def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[dict[str, Any]]) -> None:
+    """Fail when a node of the lane's graph died; restart its stack when the stack did (or fail)."""
+    graph_names = {spec.name for spec in lane.graph}
+    stack_processes = {spec.name: spec for spec in lane.stack}
+    launcher, monitor = lane.launcher, lane.monitor
+    for name, code in launcher.exited().items():
+        if name in graph_names:
+            log = launcher.log_path(name)
+            raise AttackError(f"node {name} exited with code {code}; its log ({log}):\n{_log_tail(log)}")
+        elif name in stack_processes:
+            log = launcher.log_path(name)
+            if not connected_once:
+                raise AttackError(
+                    f"the stack exited with code {code} before it connected; its log ({log}):\n{_log_tail(log, 10)}"
+                )
+            crashes.append({"query_id": monitor.progress.query, "exit_code": code})
+            launcher.stop(name)
+            if not options.stack.restart:
+                raise AttackError(f"the stack exited with code {code} during query {monitor.progress.query}")
+            launcher.start(stack_processes[name])
 
 
 def _write_stack_graph(options: AttackOptions, monitor: AttackMonitor, final: bool) -> bool:

@@ -207,6 +207,7 @@ class AttackOptions:
     replay_runs: int = 1  # `advsim replay`: how many times
     visual_report: bool = True  # draw bev.gif and report.html (seconds; campaigns may leave them to `advsim report`)
     loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the stack's plans
+    lanes: int = 1  # evaluation graphs run side by side, each with its own stack; never changes a score
 
     def __post_init__(self) -> None:
         if self.queries < 1 and not self.replay_only:
@@ -215,6 +216,10 @@ class AttackOptions:
             raise ScenarioError(f"--actors: must be at least 1, got {self.actors}")
         if self.reruns < 0 or self.rerun_top < 0 or self.replay_runs < 1:
             raise ScenarioError("--reruns and --rerun-top must be >= 0, --runs >= 1")
+        if self.lanes < 1:
+            raise ScenarioError(f"--lanes: must be at least 1, got {self.lanes}")
+        if self.lanes > 1 and self.replay_only:
+            raise ScenarioError("--lanes: only for attacks (a replay runs its runs one after another)")
         if self.loop not in ("open", "closed"):
             raise ScenarioError(f"--loop: open or closed, got {self.loop!r}")
         profile = self.stack.profile

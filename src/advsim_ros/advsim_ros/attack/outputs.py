@@ -80,6 +80,7 @@ def write_outputs(
             "seed": options.seed,
             "reruns": options.reruns,
             "rerun_top": options.rerun_top,
+            "lanes": options.lanes,  # evaluation graphs of the last run (never changes a score)
         },
         **analysis,
         "stack_crashes": crashes,

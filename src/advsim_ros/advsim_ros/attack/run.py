@@ -14,6 +14,7 @@ written from the journal alone.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import resource
@@ -48,6 +49,7 @@ ADAPTER = "stack_adapter"  # with a stack profile or --remap (relay mode): the s
 ADAPTER_PROFILE = "stack_profile.json"  # in OUTDIR/run: the profile stack_adapter works from
 _LIGHT_NODES = ("scenario_player", "scorer", "perturber", "search")
 _REPLAY_LIGHT_NODES = ("scenario_player", "scorer")
+_LANE_LIGHT_NODES = ("scenario_player", "scorer", "perturber")  # a further evaluation lane: the search is elsewhere
 
 
 @dataclass
@@ -182,19 +184,63 @@ def _run_graph(
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
 ) -> tuple[int, list[dict[str, Any]], dict[str, dict[str, float]]]:
-    from advsim_ros.attack.follow import follow
+    """Launch the graph (one per evaluation lane, each on a ROS domain of its own) and follow it to the end."""
+    from advsim_ros.attack.follow import Lane, follow
     from advsim_ros.ros.lockstep import StackNames
     from advsim_ros.ros.monitor import AttackMonitor  # rclpy only once the graph's environment is set
 
     run_id = secrets.randbelow(2**63 - 1) + 1
-    log_dir = options.out_dir.resolve() / "run" / "logs"
-    light = _REPLAY_LIGHT_NODES if options.replay_only else _LIGHT_NODES
+    run_dir = options.out_dir.resolve() / "run"
+    skip = frozenset(record.query_id for record in journal.records)
+    with contextlib.ExitStack() as resources:
+        leases = [resources.enter_context(reserve_domain_id()) for _ in range(options.lanes)]
+        domains = [lease.domain_id for lease in leases]
+        os.environ.update(graph_overrides(domains[0]))  # the monitors in this process use the same discovery
+        # for people who want to look at the live graph
+        write_text_atomically(run_dir / "graph.json", json.dumps({"ros_domain_id": domains[0], "run_id": run_id}))
+        lanes_file = None
+        if len(domains) > 1:  # the search's other lanes (an empty list would reach ROS untyped)
+            lanes_file = run_dir / "lanes.yaml"
+            write_text_atomically(
+                lanes_file, yaml.safe_dump({"/search": {"ros__parameters": {"lane_domains": domains[1:]}}})
+            )
+        lanes = []
+        for index, lease in enumerate(leases):
+            log_dir = run_dir / "logs" if index == 0 else run_dir / "logs" / f"lane{index}"
+            specs = _graph_specs(options, checked, overrides_file, lanes_file, run_id, search=index == 0)
+            stack = options.stack.processes()
+            launcher = resources.enter_context(Launcher(graph_environment(lease.domain_id), log_dir, lease))
+            monitor = resources.enter_context(
+                AttackMonitor(run_id, skip, StackNames(options.stack.relayed()), lease.domain_id, index)
+            )
+            for process in (*stack, *specs):
+                launcher.start(process)
+            lanes.append(Lane(launcher, monitor, stack, specs))
+        crashes = follow(options, checked, lanes, journal, progress)
+        used = {
+            name if index == 0 else f"lane{index}/{name}": figures
+            for index, lane in enumerate(lanes)
+            for name, figures in lane.launcher.resources().items()
+        }
+    return domains[0], crashes, used
+
+
+def _graph_specs(
+    options: AttackOptions,
+    checked: Preflight,
+    overrides_file: Path,
+    lanes_file: Path | None,
+    run_id: int,
+    search: bool,
+) -> list[NodeSpec]:
+    """The graph's own processes (the stack aside); the search only in the first lane."""
+    light = _REPLAY_LIGHT_NODES if options.replay_only else _LIGHT_NODES if search else _LANE_LIGHT_NODES
     container_files = list(dict.fromkeys(path for name in light for path in checked.files[name]))
     specs = [
         NodeSpec(
             CONTAINER,
             python_module_command("advsim_ros.nodes.container", *light),
-            params_files=(*container_files, overrides_file),
+            params_files=(*container_files, overrides_file, *((lanes_file,) if search and lanes_file else ())),
             parameters={"run_id": run_id},
             rename_node=False,  # each node keeps its own name
         ),
@@ -216,24 +262,7 @@ def _run_graph(
                 parameters={"run_id": run_id, "profile_file": str(profile_file)},
             )
         )
-    stack = options.stack.processes()
-    with reserve_domain_id() as lease:
-        env = graph_environment(lease.domain_id)
-        os.environ.update(graph_overrides(lease.domain_id))  # the monitor in this process joins the same graph
-        graph_file = options.out_dir.resolve() / "run" / "graph.json"  # for people who want to look at the live graph
-        write_text_atomically(graph_file, json.dumps({"ros_domain_id": lease.domain_id, "run_id": run_id}))
-        skip = frozenset(record.query_id for record in journal.records)
-        with (
-            Launcher(env, log_dir, lease) as launcher,
-            AttackMonitor(run_id, skip, StackNames(options.stack.relayed())) as monitor,
-        ):
-            for process in stack:
-                launcher.start(process)
-            for spec in specs:
-                launcher.start(spec)
-            crashes = follow(options, checked, launcher, monitor, stack, specs, journal, progress)
-            used = launcher.resources()
-    return lease.domain_id, crashes, used
+    return specs
 
 
 def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryRecord:

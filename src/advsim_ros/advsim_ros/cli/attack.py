@@ -41,6 +41,13 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
         "--reruns", type=int, default=2, help="evaluate the best query this many more times (default 2; 0: never)"
     )
     attack.add_argument("--rerun-top", type=int, default=1, help="re-run the N best queries (default 1)")
+    attack.add_argument(
+        "--lanes",
+        type=int,
+        default=1,
+        help="evaluate up to N queries of a batch at once, each on its own graph and stack (default 1; the scores "
+        "are the same; the algorithm's batch decides how many run together: docs/attack.md)",
+    )
     attack.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes the run)")
     attack.set_defaults(run=_run_attack)
 
@@ -205,6 +212,7 @@ def _run_attack(args: argparse.Namespace) -> int:
         rerun_top=args.rerun_top,
         parameter_overrides=parameter_overrides(args.param),
         loop=args.loop,
+        lanes=args.lanes,
     )
     return _attack_and_report(options)
 

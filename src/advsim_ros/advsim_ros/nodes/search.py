@@ -1,20 +1,31 @@
-"""search: owns the black-box search; proposes one perturbation at a time and waits for its score.
+"""search: owns the black-box search; proposes perturbations and waits for their scores.
 
 It waits for the perturber's actor selection (which fixes the delta's dimension), then drives
 the search (core.search.driver): the original scenario as query 0, the algorithm's queries,
 then re-runs of the best ones. Queries already in the attack's journal (written by `advsim
 attack` as scores arrive) are replayed into the algorithm instead of recomputed. When the
 search is over it says so on /advsim/search_status (latched): the orchestrator's signal to finish.
+
+Evaluation lanes (`advsim attack --lanes K`): the further lanes are whole graphs (perturber,
+player, lidar_resim, stack, scorer) on ROS domains of their own, listed in ``lane_domains``.
+The node joins each of them with a context of its own and sends the i-th query of a batch to
+lane i, so up to K queries run at once; every lane's perturber must have made the same actor
+selection as this graph's before it gets a query.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 from advsim_ros.contract import topics
 from advsim_ros.contract.protocol import (
@@ -28,8 +39,38 @@ from advsim_ros.core.journal import read_records
 from advsim_ros.core.search.driver import DriverConfig, drive_search
 from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_type, make_search
 from advsim_ros.core.types import Perturbation, ScenarioError
-from advsim_ros.ros.graph_node import GraphNode, run_node
+from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode, run_node
 from advsim_ros.ros.params import declare_config
+
+
+class _Lane:
+    """Another evaluation lane's graph, joined from this process: its own context on its own ROS domain."""
+
+    def __init__(
+        self, index: int, domain_id: int, run_id: int, on_score: Callable[[Any], None], notify: Callable[[], None]
+    ) -> None:
+        self.index, self.domain_id, self._notify = index, domain_id, notify
+        self.selection: Any = None
+        self.context = Context()
+        rclpy.init(args=[], context=self.context, domain_id=domain_id)
+        self.node = GraphNode(f"search_lane{index}", [Parameter(RUN_ID_PARAMETER, value=run_id)], context=self.context)
+        self.publish_perturbation = self.node.publisher(topics.PERTURBATION)
+        self.node.subscribe(topics.SCORE, on_score)
+        self.node.subscribe(topics.ACTOR_SELECTION, self._on_selection)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._spinner = threading.Thread(target=self.executor.spin, name=f"lane{index}", daemon=True)
+        self._spinner.start()
+
+    def _on_selection(self, message: Any) -> None:
+        self.selection = selection_from_msg(message)
+        self._notify()  # the search waits for every lane's selection
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self._spinner.join(timeout=5.0)
 
 
 class SearchNode(GraphNode):
@@ -49,6 +90,10 @@ class SearchNode(GraphNode):
         self._scores: dict[int, float] = {}
         self.subscribe(topics.ACTOR_SELECTION, self._on_selection)
         self.subscribe(topics.SCORE, self._on_score)
+        self._lanes = [
+            _Lane(index, domain_id, self.run_id, self._on_score, self._notify)
+            for index, domain_id in enumerate(self.config.lane_domains, start=1)
+        ]
         self._stop = threading.Event()
         self._driver = threading.Thread(target=self._run, name="search", daemon=True)
         self._driver.start()
@@ -56,6 +101,10 @@ class SearchNode(GraphNode):
     def _on_selection(self, message: Any) -> None:
         with self._condition:
             self._selection = selection_from_msg(message)
+            self._condition.notify_all()
+
+    def _notify(self) -> None:
+        with self._condition:
             self._condition.notify_all()
 
     def _on_score(self, message: Any) -> None:
@@ -70,29 +119,53 @@ class SearchNode(GraphNode):
         with self._condition:
             self._condition.notify_all()
         self._driver.join(timeout=5.0)
+        for lane in self._lanes:
+            lane.close()
         super().destroy_node()
 
     def _wait(self, ready: Any, timeout: float | None) -> bool:
         with self._condition:
             return self._condition.wait_for(lambda: self._stop.is_set() or ready(), timeout) and not self._stop.is_set()
 
-    def _evaluate(self, perturbation: Perturbation) -> float:
-        """Publish a query and wait for its score: L_adv, or NaN when the query failed or timed out."""
-        self.publish_perturbation(perturbation_msg(perturbation, self.run_id))
-        self._asked += 1
+    def _evaluate(self, perturbations: Sequence[Perturbation]) -> list[float]:
+        """Publish the queries, the i-th to lane i, and wait for their scores: L_adv, NaN when failed or timed out."""
+        publishers = [self.publish_perturbation, *(lane.publish_perturbation for lane in self._lanes)]
+        for publish, perturbation in zip(publishers, perturbations, strict=False):
+            publish(perturbation_msg(perturbation, self.run_id))
+            self._asked += 1
+            self.trace("perturbation_sent", perturbation.query_id)
         self.publish_status(search_status_msg(SearchStatusRecord(self._asked, finished=False), self.run_id))
-        query_id = perturbation.query_id
-        self.trace("perturbation_sent", query_id)
-        if not self._wait(lambda: query_id in self._scores, self.config.score_timeout):
-            if not self._stop.is_set():
-                self.get_logger().error(f"query {query_id}: no score within {self.config.score_timeout} s")
-            return math.nan
-        return self._scores[query_id]
+        ids = [perturbation.query_id for perturbation in perturbations]
+        scored = self._wait(lambda: all(query_id in self._scores for query_id in ids), self.config.score_timeout)
+        if not scored and not self._stop.is_set():
+            late = [query_id for query_id in ids if query_id not in self._scores]
+            self.get_logger().error(f"queries {late}: no score within {self.config.score_timeout} s")
+        return [self._scores.get(query_id, math.nan) for query_id in ids]
+
+    def _lanes_ready(self, selection: Any) -> bool:
+        """Wait until every further lane's perturber selected the same actors as this graph's."""
+        if self._lanes:
+            self.get_logger().info(f"waiting for the actor selection of {len(self._lanes)} more evaluation lane(s)")
+        if not self._wait(lambda: all(lane.selection is not None for lane in self._lanes), None):
+            return False
+
+        def layout(record: Any) -> tuple[Any, ...]:
+            return record.scenario_id, record.actor_ids, record.dimension, record.feasible_candidates
+
+        for lane in self._lanes:
+            if layout(lane.selection) != layout(selection):
+                raise ScenarioError(
+                    f"evaluation lane {lane.index} (ROS domain {lane.domain_id}) selected actors "
+                    f"{list(lane.selection.actor_ids)}, this graph {list(selection.actor_ids)}: lanes must be identical"
+                )
+        return True
 
     def _run(self) -> None:
         if not self._wait(lambda: self._selection is not None, None):
             return
         selection = self._selection
+        if not self._lanes_ready(selection):
+            return
         algorithm = make_search(
             self.config.algorithm, selection.dimension, np.random.default_rng(self.config.seed), self.algorithm_config
         )
@@ -100,11 +173,12 @@ class SearchNode(GraphNode):
         recorded = {record.query_id: record for record in journal}
         self.get_logger().info(
             f"{self.config.algorithm}: {algorithm.config.max_queries} queries over {selection.dimension} dimensions, "
-            f"actors {list(selection.actor_ids)}, {len(recorded)} finished queries in the journal"
+            f"actors {list(selection.actor_ids)}, {len(recorded)} finished queries in the journal, "
+            f"{1 + len(self._lanes)} evaluation lane(s)"
         )
         drive_search(
             algorithm, self._evaluate, selection.scenario_id, selection.actor_ids, self.config, recorded,
-            self._stop.is_set,
+            self._stop.is_set, lanes=1 + len(self._lanes),
         )  # fmt: skip
         if not self._stop.is_set():
             self.get_logger().info("search finished")

@@ -15,6 +15,7 @@ from typing import Any
 
 import rclpy
 from rclpy.callback_groups import CallbackGroup
+from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -36,8 +37,10 @@ SUBSCRIPTION_DEPTH = 100
 class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
     """A node that speaks the contract as CDR, knows the attack's window and ignores other runs."""
 
-    def __init__(self, name: str, parameter_overrides: list[Parameter] | None = None) -> None:
-        super().__init__(name, parameter_overrides=parameter_overrides)
+    def __init__(
+        self, name: str, parameter_overrides: list[Parameter] | None = None, context: Context | None = None
+    ) -> None:
+        super().__init__(name, parameter_overrides=parameter_overrides, context=context)
         self.run_id = int(self.declare_parameter(RUN_ID_PARAMETER, 0).value)
         self.trace = Trace(name)
         self._foreign_runs: set[tuple[str, int]] = set()

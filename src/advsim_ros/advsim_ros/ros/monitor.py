@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
@@ -78,8 +79,19 @@ class Progress:
 
 
 class AttackMonitor:
-    def __init__(self, run_id: int, skip: frozenset[int] = frozenset(), names: StackNames | None = None) -> None:
+    """Follows one graph; ``domain_id`` None: the process's ROS_DOMAIN_ID (each lane of an attack has its own)."""
+
+    def __init__(
+        self,
+        run_id: int,
+        skip: frozenset[int] = frozenset(),
+        names: StackNames | None = None,
+        domain_id: int | None = None,
+        lane: int = 0,
+    ) -> None:
         self.run_id = run_id
+        self.domain_id = domain_id
+        self.node_name = MONITOR_NODE if lane == 0 else f"{MONITOR_NODE}_lane{lane}"  # loggers are per process
         self.stack_names = names or StackNames()
         self.skip = skip  # queries already journaled (a resumed attack): never handed out again
         self.selection: SelectionRecord | None = None
@@ -89,9 +101,12 @@ class AttackMonitor:
 
     def __enter__(self) -> AttackMonitor:
         # SIGINT/SIGTERM stay the orchestrator's; args=[]: the advsim command line (--remap A:=B) is not for rcl
-        rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
-        self.node = GraphNode(MONITOR_NODE, [Parameter(RUN_ID_PARAMETER, value=self.run_id)])
-        self.executor = SingleThreadedExecutor()
+        self.context = Context()
+        rclpy.init(
+            args=[], context=self.context, domain_id=self.domain_id, signal_handler_options=SignalHandlerOptions.NO
+        )
+        self.node = GraphNode(self.node_name, [Parameter(RUN_ID_PARAMETER, value=self.run_id)], context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.node.subscribe(topics.SCORE, self._on_score)
         self.node.subscribe(topics.PERTURBATION, self._on_perturbation)
@@ -104,7 +119,7 @@ class AttackMonitor:
     def __exit__(self, *exc_info: object) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown()
+        rclpy.try_shutdown(context=self.context)
 
     def _entry(self, query_id: int) -> _Pending:
         return self._pending.setdefault(query_id, _Pending())

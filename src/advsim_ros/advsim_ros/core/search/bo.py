@@ -5,6 +5,12 @@ query maximises UCB(x) = mu(x) + sqrt(beta) sigma(x) (BoTorch's convention) of a
 to every query so far (inputs mapped to the unit cube, outcomes standardised). Failed
 queries enter the GP as the worst value seen.
 
+With `batch_size` q > 1 (evaluation lanes: `advsim attack --lanes`), each batch after the
+initial design is q points chosen greedily one after another, each maximising BoTorch's
+Monte-Carlo qUpperConfidenceBound with the points already chosen as pending (so the batch
+spreads out instead of repeating the UCB maximum); the Monte-Carlo base samples are seeded
+from the search's generator. q = 1 is the paper's sequential GP-UCB, unchanged.
+
 Cost per query (the search overhead, not the stack's) is kept low on a 2-core machine:
 - torch runs single-threaded inside the fit and the acquisition optimisation (its
   default thread pool oversubscribes 2 cores and made a 75-point fit 5-10x slower);
@@ -28,12 +34,15 @@ from typing import Any
 
 import numpy as np
 import torch
+from botorch.acquisition.acquisition import AcquisitionFunction
 from botorch.acquisition.analytic import UpperConfidenceBound
+from botorch.acquisition.monte_carlo import qUpperConfidenceBound
 from botorch.exceptions.warnings import InputDataWarning, OptimizationWarning
 from botorch.models import SingleTaskGP
 from botorch.models.transforms import Standardize
 from botorch.optim.fit import fit_gpytorch_mll_scipy
 from botorch.optim.optimize import optimize_acqf
+from botorch.sampling.normal import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from advsim_ros.core.search.base import (
@@ -63,6 +72,8 @@ class BoConfig(SearchConfig):
     num_restarts: int = 1  # L-BFGS-B runs on the acquisition from the best candidates [1]
     acquisition_iterations: int = 10  # L-BFGS-B iterations per run; 0: take the best candidate as it is [1]
     torch_threads: int = 1  # torch intra-op threads during fits (more is slower on 2 cores) [1]
+    batch_size: int = 1  # queries proposed together after the initial design (qUCB when > 1) [queries]
+    mc_samples: int = 128  # Monte-Carlo samples of qUCB (batch_size > 1) [1]
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -78,6 +89,8 @@ class BoConfig(SearchConfig):
         require_config(self.num_restarts >= 1, name, "num_restarts", "must be at least 1")
         require_config(self.acquisition_iterations >= 0, name, "acquisition_iterations", "must be non-negative")
         require_config(self.torch_threads >= 1, name, "torch_threads", "must be at least 1")
+        require_config(self.batch_size >= 1, name, "batch_size", "must be at least 1")
+        require_config(self.mc_samples >= 1, name, "mc_samples", "must be at least 1")
 
 
 @contextmanager
@@ -92,7 +105,7 @@ def _torch_threads(count: int) -> Iterator[None]:
 
 
 class BayesianOptimization(SearchAlgorithm[BoConfig]):
-    """GP-UCB, one query per batch after the initial design."""
+    """GP-UCB, `batch_size` queries per batch after the initial design."""
 
     name = "bo"
 
@@ -108,7 +121,23 @@ class BayesianOptimization(SearchAlgorithm[BoConfig]):
             count = min(self.config.initial_points, self.config.max_queries)
             return self.rng.uniform(LOWER_BOUND, UPPER_BOUND, size=(count, self.dimension))
         with _torch_threads(self.config.torch_threads):
-            return self._maximise_acquisition(self._model)[None, :]
+            if self.config.batch_size == 1:
+                return self._maximise_acquisition(UpperConfidenceBound(self._model, beta=self.config.beta))[None, :]
+            return self._greedy_batch(self._model)
+
+    def _greedy_batch(self, model: SingleTaskGP) -> FloatArray:
+        """q points, each maximising qUCB given the ones chosen before it (pending)."""
+        chosen: list[FloatArray] = []
+        for _ in range(self.config.batch_size):
+            sampler = SobolQMCNormalSampler(
+                sample_shape=torch.Size([self.config.mc_samples]), seed=int(self.rng.integers(2**31))
+            )
+            pending = (
+                torch.as_tensor((np.array(chosen) - LOWER_BOUND) / (UPPER_BOUND - LOWER_BOUND)) if chosen else None
+            )
+            acquisition = qUpperConfidenceBound(model, beta=self.config.beta, sampler=sampler, X_pending=pending)
+            chosen.append(self._maximise_acquisition(acquisition))
+        return np.array(chosen)
 
     def _observe(self, points: FloatArray, values: FloatArray) -> None:
         self._points_seen = np.concatenate([self._points_seen, points])
@@ -141,10 +170,9 @@ class BayesianOptimization(SearchAlgorithm[BoConfig]):
         }
         self._model = model
 
-    def _maximise_acquisition(self, model: SingleTaskGP) -> FloatArray:
+    def _maximise_acquisition(self, acquisition: AcquisitionFunction) -> FloatArray:
 
         config = self.config
-        acquisition = UpperConfidenceBound(model, beta=config.beta)
         local_count = round(config.raw_samples * config.local_fraction)
         uniform = self.rng.uniform(LOWER_BOUND, UPPER_BOUND, size=(config.raw_samples - local_count, self.dimension))
         best = self._points_seen[np.argsort(self._values_seen)[::-1][: max(1, min(5, self._values_seen.size))]]

@@ -1,17 +1,20 @@
 """Driving one attack's search: the original scenario, the algorithm's queries, then re-runs of the best.
 
-``drive_search`` asks the algorithm one point at a time and evaluates it through a callback
-(the search node publishes it and waits for its score). Queries already in the journal are
-not evaluated again: their recorded values are told instead, which reproduces the run up to
-where it stopped because the algorithm is deterministic for its seed. After the budget, each
-of the ``rerun_top`` best queries is evaluated ``reruns`` more times (the best last), so the
-outputs can say whether a found failure reproduces.
+``drive_search`` asks the algorithm for up to ``lanes`` points at a time and evaluates them
+together through a callback (the search node publishes each to an evaluation lane, a graph of
+its own, and waits for all their scores). The algorithm proposes the same points whatever the
+batching (core.search.base), and query ids are handed out in the order of the points, so the
+queries, their ids and (for a deterministic stack) their scores do not depend on ``lanes``.
+Queries already in the journal are not evaluated again: their recorded values are told instead,
+which reproduces the run up to where it stopped because the algorithm is deterministic for its
+seed. After the budget, each of the ``rerun_top`` best queries is evaluated ``reruns`` more
+times (the best last), so the outputs can say whether a found failure reproduces.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +27,7 @@ from advsim_ros.core.types import FloatArray, Perturbation, ScenarioError
 ORIGINAL_QUERY = 0
 ORIGINAL, RERUN = "original", "rerun"  # algorithm names of the non-search queries
 
-Evaluate = Callable[[Perturbation], float]  # L_adv of a query, NaN when it failed
+EvaluateBatch = Callable[[Sequence[Perturbation]], list[float]]  # L_adv of each query, NaN when it failed
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,7 @@ class DriverConfig:
     score_original: bool = True  # evaluate the unperturbed scenario first, as query 0
     reruns: int = 2  # evaluations of each best query after the search (reproducibility check)
     rerun_top: int = 1  # how many of the best queries are re-run
+    lane_domains: tuple[int, ...] = ()  # ROS domains of the further evaluation lanes (advsim attack --lanes)
 
     def __post_init__(self) -> None:
         if self.reruns < 0 or self.rerun_top < 0:
@@ -47,53 +51,70 @@ class DriverConfig:
 
 
 class _Recorded:
-    """Evaluations through the journal: a recorded query gives its value, anything else is evaluated."""
+    """Evaluations through the journal: a recorded query gives its value, the others are evaluated together."""
 
-    def __init__(self, evaluate: Evaluate, recorded: Mapping[int, QueryRecord], log: logging.Logger) -> None:
+    def __init__(self, evaluate: EvaluateBatch, recorded: Mapping[int, QueryRecord], log: logging.Logger) -> None:
         self._evaluate, self._recorded, self._log = evaluate, recorded, log
 
-    def __call__(self, perturbation: Perturbation) -> float:
-        record = self._recorded.get(perturbation.query_id)
-        if record is None:
-            return self._evaluate(perturbation)
-        same = record.algorithm == perturbation.algorithm and np.array_equal(
-            np.asarray(record.delta, dtype=np.float64), perturbation.delta
-        )
-        if not same:
-            raise JournalError(
-                f"query {perturbation.query_id}: the search proposed {perturbation.algorithm} "
-                f"{perturbation.delta.tolist()} but the journal holds {record.algorithm} {list(record.delta)}: "
-                "the search is not deterministic"
+    def __call__(self, perturbations: Sequence[Perturbation]) -> list[float]:
+        values: dict[int, float] = {}
+        for perturbation in perturbations:
+            record = self._recorded.get(perturbation.query_id)
+            if record is None:
+                continue
+            same = record.algorithm == perturbation.algorithm and np.array_equal(
+                np.asarray(record.delta, dtype=np.float64), perturbation.delta
             )
-        return record.value
+            if not same:
+                raise JournalError(
+                    f"query {perturbation.query_id}: the search proposed {perturbation.algorithm} "
+                    f"{perturbation.delta.tolist()} but the journal holds {record.algorithm} {list(record.delta)}: "
+                    "the search is not deterministic"
+                )
+            values[perturbation.query_id] = record.value
+        missing = [p for p in perturbations if p.query_id not in values]
+        if missing:
+            values.update(zip((p.query_id for p in missing), self._evaluate(missing), strict=True))
+        return [values[p.query_id] for p in perturbations]
 
 
 def drive_search(
     algorithm: SearchAlgorithm[Any],
-    evaluate: Evaluate,
+    evaluate: EvaluateBatch,
     scenario_id: str,
     actor_ids: tuple[str, ...],
     config: DriverConfig,
     recorded: Mapping[int, QueryRecord],
     stopped: Callable[[], bool],
     log: logging.Logger | None = None,
+    lanes: int = 1,
 ) -> None:
-    """Run the whole search (see the module docstring); returns early when ``stopped()``."""
+    """Run the whole search (see the module docstring); returns early when ``stopped()``.
+
+    ``evaluate`` gets at most ``lanes`` queries at once.
+    """
+    if lanes < 1:
+        raise ScenarioError(f"search lanes: must be at least 1, got {lanes}")
     run = _Recorded(evaluate, recorded, log or logging.getLogger(__name__))
     if config.score_original:
-        run(Perturbation(ORIGINAL_QUERY, scenario_id, (), np.zeros(0), ORIGINAL))
+        run([Perturbation(ORIGINAL_QUERY, scenario_id, (), np.zeros(0), ORIGINAL)])
     query_id = ORIGINAL_QUERY + 1
     points: dict[int, FloatArray] = {}
     values: dict[int, float] = {}
     while not algorithm.done and not stopped():
-        point = algorithm.ask(1)[0]
-        value = run(Perturbation(query_id, scenario_id, actor_ids, point, algorithm.name))
-        algorithm.tell(point[None, :], [value])
-        points[query_id], values[query_id] = point, value
-        query_id += 1
-    for best in reversed(ranked_queries(values, config.rerun_top)):  # the best last: its replay is recorded
-        for _ in range(config.reruns):
-            if stopped():
-                return
-            run(Perturbation(query_id, scenario_id, actor_ids, points[best], RERUN))
-            query_id += 1
+        asked = algorithm.ask(lanes)
+        batch = [
+            Perturbation(query_id + i, scenario_id, actor_ids, point, algorithm.name) for i, point in enumerate(asked)
+        ]
+        told = run(batch)
+        algorithm.tell(asked, told)
+        for perturbation, value in zip(batch, told, strict=True):
+            points[perturbation.query_id], values[perturbation.query_id] = perturbation.delta, value
+        query_id += len(batch)
+    reruns = [best for best in reversed(ranked_queries(values, config.rerun_top)) for _ in range(config.reruns)]
+    for start in range(0, len(reruns), lanes):  # the best last: its replay is recorded
+        if stopped():
+            return
+        chunk = reruns[start : start + lanes]
+        run([Perturbation(query_id + i, scenario_id, actor_ids, points[best], RERUN) for i, best in enumerate(chunk)])
+        query_id += len(chunk)

@@ -13,7 +13,7 @@ class RandomSearchConfig(SearchConfig):
     """Uniform sampling, `batch_size` points per batch."""
 
     max_queries: int = 75  # query budget [queries]
-    batch_size: int = 1  # points proposed at a time [queries]
+    batch_size: int = 16  # points proposed at a time; the points do not depend on it (one stream) [queries]
 
     def __post_init__(self) -> None:
         super().__post_init__()
