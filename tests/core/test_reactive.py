@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from advsim_ros.core.closed_loop import NS_PER_S, ControllerConfig, VehicleState, drive_closed_loop
 from advsim_ros.core.geometry import box_distance, boxes_overlap
+from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.lidar.boxes import yaw_pose
 from advsim_ros.core.metrics import actor_futures_at
+from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.reactive import IdmConfig, ReactiveTraffic, with_overrides, with_reactions
 from advsim_ros.core.types import ActorClass, ActorTrack, EgoGeometry, EgoTrajectory, Plan, ScenarioError
 
@@ -91,6 +96,7 @@ def test_a_follower_brakes_behind_a_braking_ego_keeping_its_minimum_gap(gap: flo
     assert not overlap
     assert gaps.min() >= config.min_gap - 0.15  # IDM's s0, up to the discrete step and the braking limit
     assert np.all(np.diff(drive.centers[:, 0]) >= -1e-12)  # along its path, never backwards
+    assert np.all(drive.centers[:, 0] <= as_logged.centers[:, 0] + 1e-9)  # never ahead of its track
     assert drive.centers[-1, 0] < ego[-1].x  # standing behind the ego
 
 
@@ -188,3 +194,24 @@ def test_idm_parameters_must_make_sense() -> None:
     with pytest.raises(ScenarioError, match="corridor_margin"):
         IdmConfig(corridor_margin=-1.0)
     assert IdmConfig(corridor_margin=0.0).corridor_margin == 0.0
+
+
+def test_the_journal_keeps_the_reacted_drives() -> None:
+    (drive,) = _run([_follower(6.0)], _ego_drive(brake_at=0.5)).drives()
+    record = QueryRecord(1, "random", ("lead",), (0.5,), {"status": "ok"}, reacted=(drive,))
+    line = json.loads(json.dumps(record.as_json()))
+    (back,) = QueryRecord.from_json(line).reacted
+    assert back.actor_id == "follower"
+    np.testing.assert_array_equal(back.stamps_ns, drive.stamps_ns)
+    np.testing.assert_array_equal(back.centers, drive.centers)
+    # a query without reactions is journaled as before, and lines of before read back without any
+    plain = QueryRecord(2, "random", (), (), {"status": "ok"}).as_json()
+    assert "reacted" not in plain
+    assert QueryRecord.from_json(plain).reacted == ()
+
+
+def test_the_players_parameter_file_holds_the_defaults() -> None:
+    path = Path(__file__).resolve().parents[2] / "params" / "scenario_player.yaml"
+    params = load_node_params(path, "scenario_player")
+    assert params["reactive_actors"] is False
+    assert config_from_mapping(IdmConfig, params["reactive"], "reactive") == IdmConfig()

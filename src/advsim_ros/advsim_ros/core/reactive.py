@@ -6,7 +6,8 @@ geometry of its track (the polyline of its box centres) but its progress along i
 Intelligent Driver Model (M. Treiber, A. Hennecke, D. Helbing, "Congested traffic states in
 empirical observations and microscopic simulations", Phys. Rev. E 62, 1805, 2000), its leader
 being the simulated ego whenever the ego's box is ahead on the path and within its corridor
-(the ego's centre within half the two widths, across the path, plus ``corridor_margin``):
+(the ego's centre no further from the path than half the actor's width, half the ego box's
+extent across the path and ``corridor_margin``):
 
     s*      = max(min(s0, base), base + v dv / (2 sqrt(a b)))   desired gap, base = s0 + v T
     a_free  = a (1 - (v / v0)^delta)                            free road; v0: the track's speed at that time
@@ -14,13 +15,14 @@ being the simulated ego whenever the ego's box is ahead on the path and within i
     dv/dt   = min(a_free, a_int), within [-max_decel, a]
 
 - The actor keeps *exactly* to its track until the ego, as its leader, is closer than s*; from
-  then on the law above moves it (it does not go back to the track's timing). An actor the ego
-  never comes that close to is where its track says, state for state.
+  then on the law above moves it, but never ahead of where its track is at that time: once it has
+  caught up with its track it drives the track again. Reacting only ever holds an actor back, and
+  an actor the ego never comes that close to is where its track says, state for state.
 - ``min(a_free, a_int)`` instead of IDM's ``a_free - a (s*/s)^2``: with v0 the track's own speed,
   IDM's sum would make a follower fall back from any leader however far (its equilibrium gap at
   v = v0 is infinite), so an actor driving its track at a comfortable distance behind an ego that
   drives as logged would still brake. For gaps below s* this is the improved IDM's law (Treiber &
-  Kesting, "Traffic Flow Dynamics", 2013, sec. 11.3.6); above, the actor drives its track.
+  Kesting, "Traffic Flow Dynamics", 2013); at larger gaps the interaction only caps acceleration.
 - Logs hold drivers who follow closer than IDM's s0 + v T (1.6 s). With ``accept_logged_gaps``
   the static part of the desired gap is at most the gap the actor's track kept to the *logged*
   ego at that time (when the logged ego led it), so a car tailgating in the log is not made to
@@ -191,7 +193,8 @@ class _Actor:
         self.path = path
         self.progress = path.progress_at(start_ns)
         self.speed = path.speed_at(start_ns)
-        self.reacting = False  # left its track: from then on the IDM moves it
+        self.reacting = False  # off its track now: the IDM moves it
+        self.reacted = False  # left its track at some time of the drive
         self.rows: list[FloatArray] = []
 
     def record_on_track(self, stamps_ns: IntArray) -> None:
@@ -269,7 +272,7 @@ class ReactiveTraffic:
                     logged_gap = None if logged is None else logged[0]
                 desired = config.desired_gap(actor.speed, actor.speed - leader[1], logged_gap)
                 if not actor.reacting and leader[0] < desired - GAP_TOLERANCE:
-                    actor.reacting = True  # the ego is closer than it wants: the IDM takes over from here
+                    actor.reacting = actor.reacted = True  # the ego is closer than it wants: the IDM takes over
             if not actor.reacting:
                 actor.progress, actor.speed = path.progress_at(after), path.speed_at(after)
                 actor.record_on_track(np.array([after], dtype=np.int64))
@@ -283,6 +286,11 @@ class ReactiveTraffic:
             else:
                 actor.progress += 0.5 * (actor.speed + speed) * dt
                 actor.speed = speed
+            if actor.progress >= path.progress_at(after):  # caught up with its track: never ahead of it
+                actor.reacting = False
+                actor.progress, actor.speed = path.progress_at(after), path.speed_at(after)
+                actor.record_on_track(np.array([after], dtype=np.int64))
+                continue
             actor.record_at_progress()
         self.now_ns = after
 
@@ -293,7 +301,7 @@ class ReactiveTraffic:
         return self.ego.boxes(xy[0], yaws[0]) if bool(valid[0]) else None
 
     def off_track(self) -> tuple[ActorTrack, ...]:
-        """The actors that left their tracks, each with one state: where it is now (log time)."""
+        """The actors off their tracks now, each with one state: where it is (log time)."""
         return tuple(
             _track(actor.path.track, np.array([self.now_ns], dtype=np.int64), actor.rows[-1][None])
             for actor in self.actors
@@ -302,12 +310,12 @@ class ReactiveTraffic:
 
     def drives(self, reacted_only: bool = True) -> tuple[ActorTrack, ...]:
         """Each reactive actor's drive, one state per control step from the start (log time): by default only
-        of those that left their tracks (the others drove their tracks exactly)."""
+        of those that left their tracks at some time (the others drove their tracks exactly)."""
         stamps = self.start_ns + self.step_ns * np.arange(len(self.actors[0].rows) if self.actors else 0)
         return tuple(
             _track(actor.path.track, stamps.astype(np.int64), np.array(actor.rows))
             for actor in self.actors
-            if actor.reacting or not reacted_only
+            if actor.reacted or not reacted_only
         )
 
 
