@@ -207,6 +207,7 @@ class AttackOptions:
     replay_runs: int = 1  # `advsim replay`: how many times
     visual_report: bool = True  # draw bev.gif and report.html (seconds; campaigns may leave them to `advsim report`)
     loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the stack's plans
+    reactive_actors: bool = False  # closed loop: moving vehicles react to the ego (IDM along their paths)
 
     def __post_init__(self) -> None:
         if self.queries < 1 and not self.replay_only:
@@ -217,6 +218,8 @@ class AttackOptions:
             raise ScenarioError("--reruns and --rerun-top must be >= 0, --runs >= 1")
         if self.loop not in ("open", "closed"):
             raise ScenarioError(f"--loop: open or closed, got {self.loop!r}")
+        if self.reactive_actors and self.loop != "closed":
+            raise ScenarioError("--reactive-actors: only with --loop closed (in open loop nothing drives)")
         profile = self.stack.profile
         if self.loop == "closed" and profile is not None and profile.timing.timer:
             # the stepped clock answers a sweep after the next one is due: the loop would run time backwards
