@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from advsim_ros.campaign.config import CampaignError, FailureRule, expand, load_campaign, materialize
+from advsim_ros.campaign.config import AttackPlan, CampaignError, FailureRule, expand, load_campaign, materialize
 from advsim_ros.campaign.journal import CampaignJournal
 from advsim_ros.io.bag import write_scenario_bag
 from advsim_ros.io.synthetic import generate_synthetic_log
@@ -71,6 +71,18 @@ def test_both_loops_double_the_attacks_and_closed_loop_ones_say_so(bag: Path, tm
     assert closed[0].identity()["loop"] == "closed"
     with pytest.raises(CampaignError, match="loops: expected open, closed or both"):
         load_campaign(_write(tmp_path, {**_good(bag), "loops": ["sideways"]}))
+
+
+def test_reactive_actors_make_the_closed_loop_attacks_reactive_and_only_those(bag: Path, tmp_path: Path) -> None:
+    campaign = load_campaign(_write(tmp_path, {**_good(bag), "loops": ["open", "closed"], "reactive_actors": True}))
+    plans = expand(campaign)
+    assert all(plan.reactive_actors == (plan.loop == "closed") for plan in plans)
+    assert all(plan.key.endswith("-closed-reactive") for plan in plans if plan.loop == "closed")
+    closed = next(plan for plan in plans if plan.loop == "closed")
+    assert closed.options(tmp_path / "r", tmp_path).reactive_actors
+    assert AttackPlan.from_json({k: v for k, v in closed.as_json().items() if k != "reactive_actors"}).loop == "closed"
+    with pytest.raises(CampaignError, match="reactive_actors: only for closed-loop attacks"):
+        load_campaign(_write(tmp_path, {**_good(bag), "reactive_actors": True}))
 
 
 def test_curated_windows_are_the_top_k_by_collision_rate_and_synthetic_logs_are_written(tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 import sys
@@ -12,9 +13,10 @@ import numpy as np
 import pytest
 
 from advsim_ros.core.curation import crop_frames
-from advsim_ros.core.types import Scenario
+from advsim_ros.core.lidar.assets import template_surface
+from advsim_ros.core.types import ActorClass, ActorTrack, Scenario, Sweep
 from advsim_ros.io.bag import write_scenario_bag
-from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
+from advsim_ros.io.synthetic import SyntheticConfig, SyntheticLog, generate_synthetic_log
 from advsim_ros.ros.launcher import Launcher, graph_environment, reserve_domain_id
 
 PROCESSES = Path(__file__).resolve().parent / "processes"
@@ -64,6 +66,34 @@ def lead_brake_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The demo's synthetic scene (family lead_brake, seed 1): a lead car braking ahead of the ego."""
     log = generate_synthetic_log(np.random.default_rng(1), SyntheticConfig(family="lead_brake"))
     return write_scenario_bag(log.scenario, tmp_path_factory.mktemp("lead_brake") / "log", source="synthetic")
+
+
+@pytest.fixture(scope="session")
+def tailgated_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The lead_brake scene (seed 1) with a car following the ego closely: it drives the logged ego's path 0.3 s
+    later, 2 m behind it at a standstill (4.4 m at 8 m/s), and is in every sweep."""
+    log = generate_synthetic_log(np.random.default_rng(1), SyntheticConfig(family="lead_brake"))
+    scenario = log.scenario
+    times = (scenario.frame_stamps_ns - scenario.frame_stamps_ns[0]) * 1e-9
+    logged_x, lane_y = scenario.ego.xy[:, 0], float(scenario.ego.xy[0, 1])
+    size = np.array([4.6, 1.8, 1.5])
+    x = np.interp(times - 0.3, times, logged_x, left=np.nan)
+    x = np.where(np.isnan(x), logged_x[0] + 8.0 * (times - 0.3), x)  # before the log: cruising at 8 m/s
+    x -= 2.0 + 1.25 + 0.5 * size[0]  # the ego's rear is 1.25 m behind its origin
+    centres = np.column_stack([x, np.full_like(x, lane_y), np.full_like(x, 0.5 * size[2])])
+    follower = ActorTrack("follower", ActorClass.VEHICLE, size, scenario.frame_stamps_ns, centres, np.zeros_like(x))
+    world = dataclasses.replace(scenario, actors=(*scenario.actors, follower), sweeps=())
+    surfaces = {**log.actor_surfaces, "follower": template_surface(ActorClass.VEHICLE, size, 0.3)}
+    tailgated = SyntheticLog(world, log.static_surface, surfaces, log.config)
+    rng = np.random.default_rng(2)
+    sweeps = []
+    for index, stamp in enumerate(scenario.frame_stamps_ns[:60]):
+        sensor_pose = scenario.ego.poses[index] @ scenario.ego_T_sensor
+        points = tailgated.render(sensor_pose, tailgated.actor_poses_at(int(stamp)), rng)
+        sweeps.append(Sweep(int(stamp), scenario.sweeps[index].frame_id, points, sensor_pose))
+    rendered = dataclasses.replace(world, scenario_id="synthetic_tailgated", sweeps=tuple(sweeps))
+    window = crop_frames(rendered, 0, 59)  # one window (1 s + 5 s): less to build the re-simulation model from
+    return write_scenario_bag(window, tmp_path_factory.mktemp("tailgated") / "log", source="synthetic")
 
 
 @pytest.fixture

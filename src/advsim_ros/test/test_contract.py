@@ -136,7 +136,12 @@ ROUND_TRIPS: dict[str, tuple[Any, Callable[[Any], Any], Callable[[Any], Any]]] =
     ),
     names.FRAME_REQUEST: (
         FrameRequestRecord(
-            3, 2, 12, 1_200_000_000, np.array([[0.0, -1, 0, 3], [1, 0, 0, 4], [0, 0, 1, 0.5], [0, 0, 0, 1]])
+            3,
+            2,
+            12,
+            1_200_000_000,
+            np.array([[0.0, -1, 0, 3], [1, 0, 0, 4], [0, 0, 1, 0.5], [0, 0, 0, 1]]),
+            (_track("reacted", 1),),
         ),
         lambda record: frame_request_msg(record, "world", 7),
         frame_request_from_msg,
@@ -154,6 +159,8 @@ ROUND_TRIPS: dict[str, tuple[Any, Callable[[Any], Any], Callable[[Any], Any]]] =
             "ab",
             "cd",
             path_msg(PLAN, 1_000_000_000, "world"),
+            executed=_track("ego", 5),
+            reacted_actors=(_track("a", 5), _track("b", 5)),
         ),
         lambda record: episode_msg(record, 7),
         episode_from_msg,

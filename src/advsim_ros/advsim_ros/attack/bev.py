@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +12,7 @@ import numpy as np
 
 from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.geometry import box_corners
-from advsim_ros.core.types import FloatArray, Plan, Scenario
+from advsim_ros.core.types import ActorTrack, FloatArray, Plan, Scenario
 
 
 def _number(value: Any) -> str:
@@ -26,9 +27,10 @@ def draw_bev(
     window: WindowConfig,
     summary: dict[str, Any],
     driven: tuple[FloatArray | None, FloatArray | None] = (None, None),
+    reacted: tuple[Sequence[ActorTrack], Sequence[ActorTrack]] = ((), ()),
 ) -> None:
     """Bird's-eye view, original (left) vs adversarial (right): actors, human trajectory, the stack's plan,
-    and in closed loop what the ego drove ((K, 2) positions)."""
+    in closed loop what the ego drove ((K, 2) positions) and where reactive actors drove instead of their tracks."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -42,10 +44,10 @@ def draw_bev(
     moved_ids = set(summary["perturbed_actors"])
     figure, axes = plt.subplots(1, 2, figsize=(14, 6.5), sharex=True, sharey=True)
     panels = (
-        ("original (logged)", source, summary.get("original"), plans[0], driven[0]),
-        ("adversarial", adversarial, summary.get("adversarial"), plans[1], driven[1]),
+        ("original (logged)", source, summary.get("original"), plans[0], driven[0], reacted[0]),
+        ("adversarial", adversarial, summary.get("adversarial"), plans[1], driven[1], reacted[1]),
     )
-    for axis, (title, scenario, score, plan, drove) in zip(axes, panels, strict=True):
+    for axis, (title, scenario, score, plan, drove, reactions) in zip(axes, panels, strict=True):
         if scenario is adversarial and adversarial.sweeps:
             sweep = adversarial.sweeps[-1]
             xyz = sweep.xyz[:: max(1, sweep.num_points // 20000)]
@@ -74,6 +76,10 @@ def draw_bev(
             axis.plot(plan.xy[:, 0], plan.xy[:, 1], color="black", lw=2, label="stack plan")
         if drove is not None:
             axis.plot(drove[:, 0], drove[:, 1], color="tab:orange", lw=2, label="driven (closed loop)")
+        for index, track in enumerate(reactions):
+            label = "reacted actors (closed loop)" if index == 0 else None
+            axis.plot(track.centers[:, 0], track.centers[:, 1], color="tab:purple", lw=2, label=label)
+            axis.plot(*track.centers[-1, :2], "o", color="tab:purple", ms=4)  # where it ended up
         text = (
             "no score"
             if score is None

@@ -92,13 +92,15 @@ def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
 
 def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, Any]]) -> None:
     """Build every node's configs the way the node will, so bad parameters fail here, not in a process."""
+    from advsim_ros.core.closed_loop import ControllerConfig
     from advsim_ros.core.feasibility import PerturberConfig
+    from advsim_ros.core.reactive import IdmConfig
     from advsim_ros.nodes.lidar_resim import ResimNodeConfig
     from advsim_ros.ros.lockstep import PlayerConfig
 
     shared = {"window", "bag", "run_id"}
     known = {
-        "scenario_player": {*_fields(PlayerConfig), *shared},
+        "scenario_player": {*_fields(PlayerConfig), "controller", "reactive", *shared},
         "lidar_resim": {*_fields(ResimNodeConfig), "resim", *shared},
         "perturber": {*_fields(PerturberConfig), *shared},
         "scorer": {"objective", "metrics", "drivable", *shared},
@@ -112,6 +114,8 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
             raise ScenarioError(f"/{node}: unknown parameter(s) {unknown} (known: {sorted(known[node])})")
 
     section(parameters["scenario_player"], "", PlayerConfig, "/scenario_player")
+    section(parameters["scenario_player"], "controller", ControllerConfig, "/scenario_player controller")
+    section(parameters["scenario_player"], "reactive", IdmConfig, "/scenario_player reactive")
     section(parameters["lidar_resim"], "", ResimNodeConfig, "/lidar_resim")
     section(parameters["lidar_resim"], "resim", ResimConfig, "/lidar_resim")
     section(parameters["perturber"], "", PerturberConfig, "/perturber")

@@ -208,6 +208,7 @@ class AttackOptions:
     visual_report: bool = True  # draw bev.gif and report.html (seconds; campaigns may leave them to `advsim report`)
     loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the stack's plans
     lanes: int = 1  # evaluation graphs run side by side, each with its own stack; never changes a score
+    reactive_actors: bool = False  # closed loop: moving vehicles react to the ego (IDM along their paths)
 
     def __post_init__(self) -> None:
         if self.queries < 1 and not self.replay_only:
@@ -222,6 +223,8 @@ class AttackOptions:
             raise ScenarioError("--lanes: only for attacks (a replay runs its runs one after another)")
         if self.loop not in ("open", "closed"):
             raise ScenarioError(f"--loop: open or closed, got {self.loop!r}")
+        if self.reactive_actors and self.loop != "closed":
+            raise ScenarioError("--reactive-actors: only with --loop closed (in open loop nothing drives)")
         profile = self.stack.profile
         if self.loop == "closed" and profile is not None and profile.timing.timer:
             # the stepped clock answers a sweep after the next one is due: the loop would run time backwards

@@ -109,9 +109,12 @@ def write_outputs(
     final = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
     if options.replay_only and records:
         final = records[-1]
-    driven = [None if r is None or r.executed is None else r.executed.xy for r in (by_id.get(0), final)]
+    shown = (by_id.get(0), final)
+    driven = [None if r is None or r.executed is None else r.executed.xy for r in shown]
+    reacted = [() if r is None else r.reacted for r in shown]
     plans = (original_plan, final.plan if final else None)
-    draw_bev(out_dir / "bev.png", scenario, adversarial, plans, window, summary, (driven[0], driven[1]))
+    draw_bev(out_dir / "bev.png", scenario, adversarial, plans, window, summary, (driven[0], driven[1]),
+             (reacted[0], reacted[1]))  # fmt: skip
     # bev.gif and report.html from the bag and summary just written (`advsim report OUTDIR` draws them later)
     if options.visual_report and summary["outputs"].get("adversarial_bag"):
         from advsim_ros.viz.outputs import write_viz_outputs

@@ -84,6 +84,8 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
             }
         }
     player = overrides["/scenario_player"]["ros__parameters"]
+    if options.reactive_actors:
+        player["reactive_actors"] = True
     if options.stack.relayed():  # the stack keeps its own topic names: stack_adapter bridges them
         player["stack_topics"] = _pairs(options.stack.relayed())
     profile = options.stack.profile
@@ -131,6 +133,7 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
             "stack_parameters": stack.hexdigest(),
             "mode": "replay" if options.replay_only else "attack",
             **({"loop": options.loop} if options.loop != "open" else {}),  # open-loop journals of before resume
+            **({"reactive_actors": True} if options.reactive_actors else {}),  # and non-reactive ones
             "algorithm": options.algorithm,
             "seed": options.seed,
             "queries": options.queries,
@@ -272,6 +275,7 @@ def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryReco
     from advsim_ros.core.closed_loop import ControllerConfig
 
     plan = executed = None
+    reacted: tuple[Any, ...] = ()
     episode = finished.episode
     offset = clock_offset(finished.perturbation.query_id)
     if episode is not None and episode.decision_plan is not None:
@@ -281,6 +285,8 @@ def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryReco
             plan = None
     if episode is not None and episode.executed is not None:
         executed = episode.executed.to_executed(ControllerConfig().wheelbase, offset)
+    if episode is not None:
+        reacted = tuple(track.shifted(-offset).to_actor_track() for track in episode.reacted_actors)
     perturbation = finished.perturbation
     return QueryRecord(
         query_id=perturbation.query_id,
@@ -291,4 +297,5 @@ def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryReco
         tracks=tuple(finished.tracks),
         plan=plan,
         executed=executed,
+        reacted=reacted,
     )

@@ -13,6 +13,7 @@
     actors: [1]                     # actors perturbed at once (Table 4: [1, 2, 3, 4, 5])
     objectives: [M5]                # M0..M5, closest_distance, max_margin (Table 6)
     loops: [open]                   # open (the paper's), closed (the ego drives the plans), or both
+    reactive_actors: false          # closed-loop attacks: moving vehicles react to the ego (IDM along their paths)
     seeds: [0]
     reruns: 1                       # re-evaluations of each attack's best query (reproducibility)
     transfer: true                  # replay every found failure on every other stack (Table 3)
@@ -46,8 +47,8 @@ from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.core.types import ScenarioError
 
 TOP_KEYS = (
-    "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "loops", "reruns", "transfer", "failure",
-    "parameters", "plan_timeout",
+    "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "loops", "reactive_actors", "reruns",
+    "transfer", "failure", "parameters", "plan_timeout",
 )  # fmt: skip
 SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows")
 STACK_KEYS = ("name", "command", "remap", "remap_mode", "params")
@@ -105,6 +106,7 @@ class AttackPlan:
     plan_timeout: float
     parameters: Mapping[str, Any] = field(default_factory=dict)
     loop: str = "open"  # open (the paper's) or closed (the ego drives the stack's plans)
+    reactive_actors: bool = False  # closed loop: moving vehicles react to the ego
 
     def identity(self) -> dict[str, Any]:
         """The IDENTITY columns of results.csv (and the bag)."""
@@ -130,7 +132,7 @@ class AttackPlan:
             bag=Path(self.bag), out_dir=out_dir, stack=stack_spec(self.stack_entry, config_dir),
             algorithm=self.algorithm, queries=self.budget, actors=self.actors, seed=self.seed,
             window_start_frame=self.window_start, plan_timeout=self.plan_timeout, reruns=self.reruns,
-            parameter_overrides=overrides, visual_report=False, loop=self.loop,
+            parameter_overrides=overrides, visual_report=False, loop=self.loop, reactive_actors=self.reactive_actors,
         )  # fmt: skip
 
 
@@ -147,6 +149,7 @@ class Campaign:
     objectives: tuple[str, ...]
     seeds: tuple[int, ...]
     loops: tuple[str, ...]
+    reactive_actors: bool  # for the closed-loop attacks
     reruns: int
     transfer: bool
     failure: FailureRule
@@ -332,6 +335,11 @@ def load_campaign(path: Path) -> Campaign:
     loops = loops if isinstance(loops, list) else [loops]
     if not loops or any(loop not in ("open", "closed") for loop in loops) or len(set(loops)) != len(loops):
         raise _fail(path, "loops", f"expected open, closed or both, got {values.get('loops')!r}")
+    reactive_actors = values.get("reactive_actors", False)
+    if not isinstance(reactive_actors, bool):
+        raise _fail(path, "reactive_actors", f"expected true or false, got {reactive_actors!r}")
+    if reactive_actors and "closed" not in loops:
+        raise _fail(path, "reactive_actors", "only for closed-loop attacks: add closed to loops")
     reruns = _int_list(path, "reruns", values.get("reruns", 1), 0)
     plan_timeout = values.get("plan_timeout", 10.0)
     if not isinstance(plan_timeout, (int, float)) or not math.isfinite(plan_timeout) or plan_timeout <= 0:
@@ -346,6 +354,7 @@ def load_campaign(path: Path) -> Campaign:
         objectives=tuple(str(o) for o in objectives),
         seeds=_int_list(path, "seeds", values.get("seeds", [0]), 0),
         loops=tuple(str(loop) for loop in loops),
+        reactive_actors=reactive_actors,
         reruns=reruns[0],
         transfer=bool(values.get("transfer", True)),
         failure=FailureRule(bool(failure.get("collision", True)), failure.get("adversarial_loss_above")),
@@ -408,6 +417,8 @@ def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPla
             ):  # fmt: skip
                 key = f"{source.name}-w{start:04d}-{stack}-{algorithm}{budget}-m{actors}-{objective}-s{seed}"
                 key += "-closed" if loop == "closed" else ""  # open-loop keys as before: their journals resume
+                reactive = campaign.reactive_actors and loop == "closed"
+                key += "-reactive" if reactive else ""
                 plans.append(
                     AttackPlan(
                         key=re.sub(r"[^A-Za-z0-9_.-]", "_", key),
@@ -425,6 +436,7 @@ def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPla
                         plan_timeout=campaign.plan_timeout,
                         parameters=campaign.parameters,
                         loop=loop,
+                        reactive_actors=reactive,
                     )
                 )
     return plans

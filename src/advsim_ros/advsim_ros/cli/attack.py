@@ -114,6 +114,12 @@ def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
         help="open (default, the paper's): score the decision plan; closed: the ego drives the stack's plans for "
         "5 s, every sweep rendered where it is, and what it drove is scored (docs/attack.md)",
     )
+    parser.add_argument(
+        "--reactive-actors",
+        action="store_true",
+        help="with --loop closed: moving vehicles keep their paths but react to the ego's driving (IDM: they brake "
+        "behind it instead of driving through it; docs/attack.md)",
+    )
     parser.add_argument("--plan-timeout", type=float, default=10.0, help="longest wait for a plan per frame [s]")
     parser.add_argument(
         "--param",
@@ -213,6 +219,7 @@ def _run_attack(args: argparse.Namespace) -> int:
         parameter_overrides=parameter_overrides(args.param),
         loop=args.loop,
         lanes=args.lanes,
+        reactive_actors=args.reactive_actors,
     )
     return _attack_and_report(options)
 
@@ -250,6 +257,7 @@ def _run_replay(args: argparse.Namespace) -> int:
         replay_runs=args.runs,
         parameter_overrides=parameter_overrides(args.param),
         loop=args.loop,
+        reactive_actors=args.reactive_actors,
     )
     recorded = recorded_score(args.bag)
     try:

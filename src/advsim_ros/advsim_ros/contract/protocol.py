@@ -99,6 +99,7 @@ class FrameRequestRecord:
     log_frame: int  # index in the log
     sim_stamp_ns: int  # the frame's sim time; the sweep is published with it [ns]
     world_T_ego: FloatArray  # (4, 4)
+    reacted_actors: tuple[TrackRecord, ...] = ()  # reactive actors off their tracks: one state each (sim time)
 
 
 def frame_request_msg(request: FrameRequestRecord, world_frame: str, run_id: int) -> Any:
@@ -110,6 +111,7 @@ def frame_request_msg(request: FrameRequestRecord, world_frame: str, run_id: int
         frame_index=request.frame_index,
         log_frame=request.log_frame,
         ego_pose=pose_msg(request.world_T_ego),
+        reacted_actors=[track_msg(track) for track in request.reacted_actors],
     )
 
 
@@ -121,6 +123,7 @@ def frame_request_from_msg(request: Any) -> FrameRequestRecord:
         log_frame=int(request.log_frame),
         sim_stamp_ns=stamp_ns(request.header.stamp),
         world_T_ego=pose_matrix(pose.position, pose.orientation, f"frame request of query {request.query_id}"),
+        reacted_actors=tuple(track_from_msg(track) for track in request.reacted_actors),
     )
 
 
@@ -145,6 +148,7 @@ class EpisodeRecord:
     detections: TrackArrayRecord | None = None
     predictions: TrackArrayRecord | None = None
     executed: TrackRecord | None = None  # closed loop: what the ego drove from the decision on (sim time)
+    reacted_actors: tuple[TrackRecord, ...] = ()  # closed loop: the reactive actors that left their tracks (sim time)
 
 
 def _no_track() -> Any:
@@ -181,6 +185,7 @@ def episode_msg(episode: EpisodeRecord, run_id: int, detections: Any = None, pre
         predictions=predictions if predictions is not None else empty_tracks,
         has_executed=episode.executed is not None,
         executed=track_msg(episode.executed) if episode.executed is not None else _no_track(),
+        reacted_actors=[track_msg(track) for track in episode.reacted_actors],
     )
 
 
@@ -200,6 +205,7 @@ def episode_from_msg(episode: Any) -> EpisodeRecord:
         detections=track_array_from_msg(episode.detections) if episode.has_detections else None,
         predictions=track_array_from_msg(episode.predictions) if episode.has_predictions else None,
         executed=track_from_msg(episode.executed) if episode.has_executed else None,
+        reacted_actors=tuple(track_from_msg(track) for track in episode.reacted_actors),
     )
 
 

@@ -7,6 +7,7 @@ detections and predictions all travel as ActorTrack: a box with a class and stam
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -115,6 +116,10 @@ class TrackRecord:
             centers=self.xyz,
             yaws=self.yaw,
         )
+
+    def shifted(self, offset_ns: int) -> TrackRecord:
+        """The same states stamped offset_ns later (log time <-> a query's sim time)."""
+        return dataclasses.replace(self, stamps_ns=self.stamps_ns + offset_ns)
 
     def state(self, index: int) -> TrackRecord:
         """The record with only state ``index`` (a scenario bag's per-frame ActorTrackArray)."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -158,6 +159,13 @@ def control_step(state: VehicleState, plan: Plan, now_ns: int, config: Controlle
 Planner = Callable[[int, VehicleState], Plan]  # (now [ns], the ego's state) -> the stack's plan
 
 
+class Traffic(Protocol):
+    """What moves with the ego in closed loop (core.reactive.ReactiveTraffic)."""
+
+    def step(self, now_ns: int, ego: VehicleState) -> None:
+        """Advance one control period from now_ns, the ego being in this state at now_ns."""
+
+
 def initial_state(world_T_ego: FloatArray, speed: float, yaw_rate: float, config: ControllerConfig) -> VehicleState:
     """The ego at the decision frame as the controller takes it over: the logged pose, speed and the steer
     that gives the logged yaw rate (within the steering limit), no acceleration commanded yet."""
@@ -184,12 +192,14 @@ def drive_closed_loop(
     horizon_s: float,
     replan_period_s: float = 0.1,
     config: ControllerConfig | None = None,
+    traffic: Traffic | None = None,
 ) -> ExecutedTrajectory:
     """Drive ``horizon_s`` from ``initial``: the planner is asked every replan period, the controller tracks between.
 
     The planner sees the ego's true state at each replan instant (in the graph: the pose the
     sweep is rendered from and the odometry published); a replan period must hold a whole
-    number of control periods.
+    number of control periods. ``traffic`` (reactive actors) steps with the ego: when the planner
+    is asked at a stamp, the traffic is at that stamp too.
     """
     config = config or ControllerConfig()
     steps_per_plan = round(replan_period_s / config.control_period)
@@ -210,7 +220,10 @@ def drive_closed_loop(
             plan = planner(now_ns, state)
             plans.append(plan)
         assert plan is not None
-        state = control_step(state, plan, now_ns, config)
+        following = control_step(state, plan, now_ns, config)
+        if traffic is not None:
+            traffic.step(now_ns, state)  # the actors see the ego where it is at the step's start, as the controller
+        state = following
         stamps.append(now_ns + step_ns)
         states.append(_as_row(state))
     return ExecutedTrajectory(np.asarray(stamps, dtype=np.int64), np.asarray(states), tuple(plans))

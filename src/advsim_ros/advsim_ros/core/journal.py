@@ -106,6 +106,7 @@ class QueryRecord:
     tracks: tuple[ActorTrack, ...] = ()  # the perturbed actors' trajectories (log time)
     plan: Plan | None = None  # the stack's plan of the decision frame (log time), None when it gave none
     executed: ExecutedTrajectory | None = None  # closed loop: what the ego drove (log time; plans not kept)
+    reacted: tuple[ActorTrack, ...] = ()  # closed loop, reactive actors: the drives of those that reacted (log time)
 
     @property
     def ok(self) -> bool:
@@ -127,6 +128,7 @@ class QueryRecord:
             "tracks": [_track_json(track) for track in self.tracks],
             "plan": _plan_json(self.plan),
             **({"executed": _executed_json(self.executed)} if self.executed is not None else {}),
+            **({"reacted": [_track_json(track) for track in self.reacted]} if self.reacted else {}),
         }
 
     @staticmethod
@@ -140,6 +142,7 @@ class QueryRecord:
             tracks=tuple(_track_from_json(track) for track in values.get("tracks", ())),
             plan=_plan_from_json(values.get("plan")),
             executed=_executed_from_json(values.get("executed")),
+            reacted=tuple(_track_from_json(track) for track in values.get("reacted", ())),
         )
 
 

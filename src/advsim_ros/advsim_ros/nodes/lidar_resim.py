@@ -7,7 +7,8 @@ frame and fields, carries the request's sim stamp and goes to the player (/advsi
 which hands it to the stack when the stack is ready for it: frames are rendered ahead while the
 stack plans. In closed loop a request may place the ego away from where it was logged: beyond
 render_distance / render_yaw the sweep is rendered from the model at that pose
-(core.lidar.novel_view) instead of re-simulated from the logged sweep.
+(core.lidar.novel_view) instead of re-simulated from the logged sweep. With reactive actors a
+request names the actors that left their tracks and where they are: they are placed there.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.novel_view import render_from_model
 from advsim_ros.core.lidar.query import query_sweep, world_rng
 from advsim_ros.core.lidar.resim import ResimModel
+from advsim_ros.core.reactive import with_overrides
 from advsim_ros.core.types import ActorTrack, FloatArray, ScenarioError, Sweep, replace_actors
 from advsim_ros.io.cache import cache_root
 from advsim_ros.nodes.scenario_node import ScenarioNode
@@ -86,6 +88,9 @@ class LidarResim(ScenarioNode):
             stamp = int(self.scenario.frame_stamps_ns[request.log_frame])
             logged = self.sweeps.get(stamp)
             moved = self.tracks[request.query_id]
+            if request.reacted_actors:  # reactive actors away from their tracks: one state each, at this frame
+                reacted = (track.shifted(stamp - request.sim_stamp_ns) for track in request.reacted_actors)
+                moved = with_overrides(moved, tuple(track.to_actor_track() for track in reacted))
             logged_pose = self.scenario.ego.poses[request.log_frame]
             config = self.config
             if logged is None or moved_away(

@@ -4,7 +4,8 @@ It owns /clock, the ego pose (/tf, /ego/odom) and the latched scenario topics (/
 /scenario/info, /map/road). For each query whose perturbed tracks arrive it waits until the
 stack and lidar_resim are connected, then replays the history frames (ros.lockstep) and
 publishes Episode phases; Episode DONE carries the stack's decision-frame answers and the
-digests of what it was sent and answered.
+digests of what it was sent and answered. In closed loop with ``reactive_actors`` it keeps each
+query's perturbed tracks: the query's actors react to the ego (core.reactive).
 """
 
 from __future__ import annotations
@@ -20,12 +21,14 @@ from advsim_ros.contract import codec, topics
 from advsim_ros.contract.protocol import episode_msg, frame_request_msg
 from advsim_ros.contract.scenario import road_map_msg, scenario_info_msg
 from advsim_ros.contract.spatial import odometry_msg, odometry_msgs, tf_message
+from advsim_ros.contract.tracks import track_array_from_msg
 from advsim_ros.core.closed_loop import ControllerConfig, initial_state, yaw_rate_of
-from advsim_ros.core.types import Scenario
+from advsim_ros.core.reactive import IdmConfig
+from advsim_ros.core.types import ActorTrack, Scenario
 from advsim_ros.io.bag.write import sensor_frame_of
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros import lockstep
-from advsim_ros.ros.closed_loop import ClosedLoopSetup, loop_frames
+from advsim_ros.ros.closed_loop import ClosedLoopSetup, ReactiveSetup, loop_frames
 from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config
 
@@ -35,6 +38,7 @@ class ScenarioPlayer(ScenarioNode):
         super().__init__("scenario_player")
         self.config = declare_config(self, lockstep.PlayerConfig)
         self.controller = declare_config(self, ControllerConfig, "controller.")  # closed loop
+        self.idm = declare_config(self, IdmConfig, "reactive.")  # closed loop, reactive_actors
         scenario, self.clock = self.load_scenario(load_sweeps=False)
         bag = self.bag_config
         frames = self.window.frame_indices(scenario.num_frames)
@@ -87,11 +91,20 @@ class ScenarioPlayer(ScenarioNode):
         self.liveness = lockstep.StackLiveness(self, names)
         self.readiness = lockstep.Readiness(self, self.latched, self.config.settle_time, names)
         self.queries: queue.Queue[int] = queue.Queue()
-        self.subscribe(topics.PERTURBED_TRACKS, lambda tracks: self.queries.put(int(tracks.query_id)))
+        self.moved: dict[int, tuple[ActorTrack, ...]] = {}  # query -> its perturbed tracks (reactive actors)
+        self.subscribe(topics.PERTURBED_TRACKS, self._on_tracks)
         self._stop = threading.Event()
         self._driver = threading.Thread(target=self._drive, name="replay", daemon=True)
         self._driver.start()
         self.get_logger().info(f"ready: {len(self.history)} history frames from log frame {frames.start}")
+
+    def _on_tracks(self, message: Any) -> None:
+        query_id = int(message.query_id)
+        if self.closed_loop is not None and self.closed_loop.reactive is not None:
+            # queries follow one another: older tracks (a late joiner's latched copy) are not needed again
+            self.moved = {q: tracks for q, tracks in self.moved.items() if q >= query_id - 1}
+            self.moved[query_id] = track_array_from_msg(message).actor_tracks()  # before the query is queued
+        self.queries.put(query_id)
 
     def _closed_loop_setup(self, scenario: Scenario, frames: range, odometry: list[Any]) -> ClosedLoopSetup:
         """The drive after the decision: from the logged ego there, over the window's future frames."""
@@ -109,6 +122,9 @@ class ScenarioPlayer(ScenarioNode):
             frames=loop_frames(stamps, scenario.ego.poses, range(decision + 1, frames.stop - 1)),  # 5 s
             period_s=self.window.frame_period,
             ego_size=scenario.ego_geometry.size,
+            reactive=ReactiveSetup(self.idm, scenario.actors, scenario.ego, scenario.ego_geometry)
+            if self.config.reactive_actors
+            else None,
         )
 
     def destroy_node(self) -> None:
@@ -133,9 +149,10 @@ class ScenarioPlayer(ScenarioNode):
                     lockstep.stack_publishes(self, topics.DETECTIONS, self.stack_names),
                     lockstep.stack_publishes(self, topics.PREDICTIONS, self.stack_names),
                 )
+                moved = self.moved.pop(query_id, ())
                 lockstep.replay_query(
                     query_id, self.history, self.clock, self.config, self.outputs, self.inputs, self.liveness,
-                    stack_outputs, self._stop, self.closed_loop,
+                    stack_outputs, self._stop, self.closed_loop, moved,
                 )  # fmt: skip
             except Exception:
                 if self._stop.is_set() or not rclpy.ok():  # shutting down: the graph API is gone

@@ -6,7 +6,8 @@ pose; lidar_resim is asked for that frame's sweep *from that pose* (FrameRequest
 /clock, /tf and /ego/odom come from the simulated ego, and the stack's answer is the plan the
 controller tracks until the next frame. A frame whose plan does not come keeps the previous plan
 (counted as missing). Everything sent and answered goes into the query's digests, as in the
-history.
+history. With reactive actors (``ClosedLoopSetup.reactive``) the query's actors step with the ego
+(core.reactive), and each frame is asked for with the actors that left their tracks where they are.
 """
 
 from __future__ import annotations
@@ -26,7 +27,16 @@ from advsim_ros.core.closed_loop import (
 )
 from advsim_ros.core.episode import EpisodeClock
 from advsim_ros.core.lidar.boxes import yaw_pose
-from advsim_ros.core.types import FloatArray, Plan, ScenarioError
+from advsim_ros.core.reactive import IdmConfig, ReactiveTraffic
+from advsim_ros.core.types import (
+    ActorTrack,
+    EgoGeometry,
+    EgoTrajectory,
+    FloatArray,
+    Plan,
+    ScenarioError,
+    replace_actors,
+)
 
 LOOPS = ("open", "closed")
 
@@ -41,6 +51,20 @@ class LoopFrame:
 
 
 @dataclass(frozen=True, eq=False)
+class ReactiveSetup:
+    """Reactive actors: what a query's traffic is made of besides its perturbed tracks."""
+
+    config: IdmConfig
+    actors: Sequence[ActorTrack]  # the log's actors (a query's perturbed tracks replace theirs)
+    logged_ego: EgoTrajectory  # the desired gaps may keep to what the tracks kept to the logged ego
+    ego: EgoGeometry
+
+    def traffic(self, moved: Sequence[ActorTrack], start_ns: int, control_period: float) -> ReactiveTraffic:
+        world = replace_actors(self.actors, moved)
+        return ReactiveTraffic(world, start_ns, control_period, self.ego, self.config, self.logged_ego)
+
+
+@dataclass(frozen=True, eq=False)
 class ClosedLoopSetup:
     """What the player needs to close the loop of one window (the same for every query)."""
 
@@ -50,6 +74,7 @@ class ClosedLoopSetup:
     frames: Sequence[LoopFrame]  # the frames the stack replans from after the decision, in order
     period_s: float  # frame period: one sweep, one replan [s]
     ego_size: FloatArray  # (3,) the ego's box: length, width, height [m]
+    reactive: ReactiveSetup | None = None  # None: actors drive their (perturbed or logged) tracks
 
     @property
     def horizon_s(self) -> float:
@@ -64,22 +89,32 @@ class LoopCounts:
     awaited: int = 0
 
 
+Exchange = Callable[[int, int, LoopFrame, FloatArray, VehicleState, tuple[ActorTrack, ...]], tuple[bool, bytes | None]]
+
+
 def close_loop(
     query_id: int,
     first_index: int,
     setup: ClosedLoopSetup,
     decision_plan: Plan,
     clock: EpisodeClock,
-    exchange: Callable[[int, int, LoopFrame, FloatArray, VehicleState], tuple[bool, bytes | None]],
-) -> tuple[ExecutedTrajectory, LoopCounts]:
+    exchange: Exchange,
+    moved: Sequence[ActorTrack] = (),
+) -> tuple[ExecutedTrajectory, LoopCounts, tuple[ActorTrack, ...]]:
     """Drive the window's horizon from the decision; ``exchange`` sends one frame and waits for the plan.
 
-    ``exchange(frame_index, sim_stamp, frame, world_T_ego, state)`` returns (sweep sent, plan CDR or None).
-    Plans are taken into log time with the query's clock offset.
+    ``exchange(frame_index, sim_stamp, frame, world_T_ego, state, off_track)`` returns (sweep sent,
+    plan CDR or None); ``off_track``: the reactive actors that left their tracks, where they are
+    (log time). Plans are taken into log time with the query's clock offset. Returns what the ego
+    drove, the counts, and the drives of the actors that reacted (log time; none without
+    ``setup.reactive``). ``moved``: the query's perturbed tracks.
     """
     counts = LoopCounts()
     current = [decision_plan]
     by_stamp = {frame.log_stamp_ns: (index, frame) for index, frame in enumerate(setup.frames)}
+    traffic = None
+    if setup.reactive is not None:
+        traffic = setup.reactive.traffic(moved, setup.decision_stamp_ns, setup.controller.control_period)
 
     def planner(now_ns: int, state: VehicleState) -> Plan:
         if now_ns == setup.decision_stamp_ns:
@@ -89,7 +124,8 @@ def close_loop(
         index, frame = by_stamp[now_ns]
         world_T_ego = yaw_pose([state.x, state.y, float(frame.logged_world_T_ego[2, 3])], state.yaw)
         sim = clock.to_sim(query_id, now_ns)
-        sent, answer = exchange(first_index + index, sim, frame, world_T_ego, state)
+        off_track = traffic.off_track() if traffic is not None else ()
+        sent, answer = exchange(first_index + index, sim, frame, world_T_ego, state, off_track)
         counts.delivered += int(sent)
         counts.awaited += 1
         if answer is not None:
@@ -98,9 +134,9 @@ def close_loop(
         return current[0]
 
     executed = drive_closed_loop(
-        setup.start, planner, setup.decision_stamp_ns, setup.horizon_s, setup.period_s, setup.controller
+        setup.start, planner, setup.decision_stamp_ns, setup.horizon_s, setup.period_s, setup.controller, traffic
     )
-    return executed, counts
+    return executed, counts, traffic.drives() if traffic is not None else ()
 
 
 def loop_frames(stamps_ns: Sequence[int], poses: FloatArray, frames: range) -> list[LoopFrame]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,7 +28,7 @@ from advsim_ros.contract.protocol import EpisodeRecord, FrameRequestRecord
 from advsim_ros.contract.tracks import TrackRecord
 from advsim_ros.core.closed_loop import VehicleState
 from advsim_ros.core.episode import EpisodeClock
-from advsim_ros.core.types import FloatArray, ScenarioError
+from advsim_ros.core.types import ActorTrack, FloatArray, ScenarioError
 from advsim_ros.ros.closed_loop import LOOPS, ClosedLoopSetup, LoopCounts, LoopFrame, close_loop
 
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
@@ -217,6 +217,7 @@ class PlayerConfig:
     settle_time: float = 1.0  # how long a new connection to the stack must hold before a query starts [s]
     stack_topics: tuple[str, ...] = ()  # CONTRACT:=STACK: topics the stack keeps its own names for (stack_adapter)
     loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the plans (closed_loop)
+    reactive_actors: bool = False  # closed loop: moving vehicles react to the ego (IDM along paths; core.reactive)
     clock_step: float = 0.0  # > 0: a stack planning on its own timer; /clock advances in these steps [s]
     real_time_factor: float = 1.0  # clock_step > 0: simulated seconds per wall-clock second while stepping
 
@@ -228,6 +229,8 @@ class PlayerConfig:
             raise ScenarioError(f"/scenario_player clock_step: must be >= 0, got {self.clock_step}")
         if self.loop not in LOOPS:
             raise ScenarioError(f"/scenario_player loop: one of {', '.join(LOOPS)}, got {self.loop!r}")
+        if self.reactive_actors and self.loop != "closed":
+            raise ScenarioError("/scenario_player reactive_actors: only with loop closed (open loop drives nothing)")
         if self.prefetch_frames < 1:
             raise ScenarioError(f"/scenario_player prefetch_frames: must be >= 1, got {self.prefetch_frames}")
         StackNames.from_pairs(self.stack_topics)  # refused here, with the pair named, when malformed
@@ -269,11 +272,13 @@ def replay_query(
     stack_outputs: tuple[bool, bool],
     stop: threading.Event,
     closed_loop: ClosedLoopSetup | None = None,
+    moved: Sequence[ActorTrack] = (),
 ) -> EpisodeRecord:
     """Replay one query's history in lock-step; returns (and publishes) its Episode DONE.
 
     With ``closed_loop`` (and a decision plan), the ego then drives the stack's plans for the
-    horizon (ros.closed_loop): the Episode DONE also carries what it drove.
+    horizon (ros.closed_loop): the Episode DONE also carries what it drove, and with reactive
+    actors the drives of those that reacted (``moved``: the query's perturbed tracks, log time).
 
     ``stack_outputs``: whether the stack publishes detections and predictions; then those of
     the decision frame are awaited too, so whether a query has them never depends on timing.
@@ -347,10 +352,12 @@ def replay_query(
                         answers[kind] = None if found is None else codec.decode(found, names.ACTOR_TRACK_ARRAY)
         phase = Phase.DECISION if decision else Phase.REPLAY
         outputs.episode(EpisodeRecord(query_id, phase, index, count, segment, delivered, received), None, None)
-    executed = None
+    executed, reacted = None, ()
     if closed_loop is not None and decision_plan is not None and not liveness.check() and not stop.is_set():
-        executed, loop_counts = _drive(query_id, count, closed_loop, decision_plan, history[-1], clock, config,
-                                       outputs, inputs, stack_gone, (inputs_digest, plans_digest), stop)  # fmt: skip
+        executed, reacted, loop_counts = _drive(
+            query_id, count, closed_loop, decision_plan, history[-1], clock, config, outputs, inputs, stack_gone,
+            (inputs_digest, plans_digest), stop, moved,
+        )  # fmt: skip
         delivered, received, awaited = (
             delivered + loop_counts.delivered,
             received + loop_counts.received,
@@ -366,7 +373,7 @@ def replay_query(
         outcome = Outcome.COMPLETE
     done = EpisodeRecord(
         query_id, Phase.DONE, count - 1, count, segment, delivered, received, outcome,
-        inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan, executed=executed,
+        inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan, executed=executed, reacted_actors=reacted,
     )  # fmt: skip
     outputs.episode(done, answers["detections"], answers["predictions"])
     outputs.trace("done_sent", query_id, -1)
@@ -416,17 +423,25 @@ def _drive(
     stack_gone: Callable[[], bool],
     digests: tuple[InputDigest, PlanDigest],
     stop: threading.Event,
-) -> tuple[TrackRecord, LoopCounts]:
-    """The closed loop after the decision: each frame's sweep from the simulated pose, the plan back."""
+    moved: Sequence[ActorTrack],
+) -> tuple[TrackRecord, tuple[TrackRecord, ...], LoopCounts]:
+    """The closed loop after the decision: each frame's sweep from the simulated pose (and the reacted actors'),
+    the plan back. Returns what the ego drove and the reacted actors' drives (sim time)."""
     inputs_digest, plans_digest = digests
     odometry_of = outputs.odometry_of
     if odometry_of is None:
         raise ScenarioError("closed loop: the player has no odometry builder for the simulated ego")
 
     def exchange(
-        frame_index: int, sim: int, frame: LoopFrame, world_T_ego: FloatArray, state: VehicleState
+        frame_index: int,
+        sim: int,
+        frame: LoopFrame,
+        world_T_ego: FloatArray,
+        state: VehicleState,
+        off_track: tuple[ActorTrack, ...],
     ) -> tuple[bool, bytes | None]:
-        outputs.frame_request(FrameRequestRecord(query_id, frame_index, frame.log_frame, sim, world_T_ego))
+        reacted = tuple(TrackRecord.from_actor_track(track).shifted(sim - frame.log_stamp_ns) for track in off_track)
+        outputs.frame_request(FrameRequestRecord(query_id, frame_index, frame.log_frame, sim, world_T_ego, reacted))
         sweep = inputs.sweeps.wait(sim, config.sweep_timeout, stop.is_set)
         odometry = odometry_of(sim, world_T_ego, state)
         outputs.clock(codec.clock_cdr(sim))
@@ -446,6 +461,6 @@ def _drive(
 
     offset = clock.to_sim(query_id, decision.log_stamp_ns) - decision.log_stamp_ns
     plan = plan_from_path(decision_plan, offset)
-    executed, counts = close_loop(query_id, history_count, setup, plan, clock, exchange)
+    executed, counts, drives = close_loop(query_id, history_count, setup, plan, clock, exchange, moved)
     track = TrackRecord.from_executed(executed, setup.ego_size, setup.controller.wheelbase, offset)
-    return track, counts
+    return track, tuple(TrackRecord.from_actor_track(drive).shifted(offset) for drive in drives), counts

@@ -16,6 +16,7 @@ from advsim_ros.core.closed_loop import ControllerConfig, executed_as_plan, exec
 from advsim_ros.core.episode import EpisodeClock
 from advsim_ros.core.metrics import Predictions, actor_futures_at
 from advsim_ros.core.objective import ScorerSettings
+from advsim_ros.core.reactive import with_reactions
 from advsim_ros.core.scoring import Detections, QueryEvaluation, evaluate_query
 from advsim_ros.core.types import ActorTrack, DrivableArea, Scenario, ScenarioError, replace_actors
 
@@ -82,8 +83,12 @@ def score_episode(
     executed = episode.executed.to_executed(ControllerConfig().wheelbase, offset)
     horizon_ns = int(executed.stamps_ns[-1] - decision_log)
     driven = executed_as_plan(executed, decision_log, PLAN_STEP_NS, horizon_ns)
-    drove = evaluate_query(driven, scenario, moved, decision_frame, settings, drivable, detections, predictions)
-    actors = replace_actors(scenario.actors, moved)
+    # reactive actors: scored where they drove, not where their tracks went
+    actors = with_reactions(
+        replace_actors(scenario.actors, moved),
+        [track.shifted(-offset).to_actor_track() for track in episode.reacted_actors],
+    )
+    drove = evaluate_query(driven, scenario, actors, decision_frame, settings, drivable, detections, predictions)
     loop = executed_metrics(executed, actor_futures_at(actors, executed.stamps_ns), scenario.ego_geometry)
     return _score(
         query_id, drove, common, loop="closed",

@@ -1,9 +1,10 @@
 """Test process: a stack that keeps a time gap to what is ahead, the example stack's way (per sweep, contract).
 
 It plans at the ego's speed, or braking at 8 m/s^2 while the nearest LiDAR return in its lane
-corridor is closer than 6 m plus 0.5 s at its speed. It reacts to what the sweep shows *now*: a
-lead that will brake is not in its plan, so the plan made before the braking runs into it (open
-loop), while replanning every sweep it brakes in time (closed loop).
+corridor is closer than 6 m plus 0.5 s at its speed (parameters standstill_gap, time_gap). It
+reacts to what the sweep shows *now*: a lead that will brake is not in its plan, so the plan made
+before the braking runs into it (open loop), while replanning every sweep it brakes in time
+(closed loop).
 """
 
 import math
@@ -24,6 +25,8 @@ STANDSTILL_GAP, TIME_GAP = 6.0, 0.5  # [m], [s]
 class GapKeepingStack(ExampleStack):
     def __init__(self) -> None:
         super().__init__("gap_keeping_stack")
+        self.standstill_gap = float(self.declare_parameter("standstill_gap", STANDSTILL_GAP).value)
+        self.time_gap = float(self.declare_parameter("time_gap", TIME_GAP).value)
 
     def plan(self, cloud: PointCloud2, odometry: Odometry) -> None:
         pose = odometry.pose.pose
@@ -33,7 +36,7 @@ class GapKeepingStack(ExampleStack):
         x, y, z = (np.asarray(points[axis], dtype=np.float64) for axis in "xyz")
         ahead = (x > 2.0) & (x < 60.0) & (np.abs(y) < 1.2) & (z > -1.2)
         gap = float(np.min(x[ahead])) if np.count_nonzero(ahead) > 5 else math.inf
-        accel = -BRAKE if gap < STANDSTILL_GAP + TIME_GAP * speed else 0.0
+        accel = -BRAKE if gap < self.standstill_gap + self.time_gap * speed else 0.0
         path = PathMsg()
         path.header = cloud.header
         path.header.frame_id = odometry.header.frame_id
