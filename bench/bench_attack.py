@@ -14,7 +14,13 @@ graph's timeline traced (ADVSIM_TRACE_DIR) for a per-query breakdown:
 the previous main in a git worktree) alternately with this one, so the machine's drift cancels,
 and reports the ratio of the medians.
 
+``--lanes K`` (K > 1) adds, per repeat and alternately, the warm 75-query BO attack with batches of
+K queries after the initial design (``bo.batch_size=K``, greedy qUCB) on one lane and on K lanes
+(``advsim attack --lanes K``: the same queries and scores, so the ratio is the lanes' speed-up),
+and the same two runs with random search (one batch: every query independent).
+
 Usage: python bench/bench_attack.py [--queries 75] [--overhead-queries 10] [--repeats 1] [--baseline DIR]
+       [--lanes K] [--skip-cold]
 Prints one JSON object. Needs ../shared/data/kitti_tracking_0000.
 """
 
@@ -52,12 +58,19 @@ def window_bag() -> Path:
 
 
 def attack(
-    checkout: Path, bag: Path, out: Path, stack: str, algorithm: str, queries: int, env: dict[str, str]
+    checkout: Path,
+    bag: Path,
+    out: Path,
+    stack: str,
+    algorithm: str,
+    queries: int,
+    env: dict[str, str],
+    extra: tuple[str, ...] = (),
 ) -> float:
     """Wall seconds of one `advsim attack` run with a checkout's own environment."""
     command = [
         str(checkout / ".venv" / "bin" / "advsim"), "attack", str(bag), "--stack", stack, "--algo", algorithm,
-        "--queries", str(queries), "--window-start", "0", "-o", str(out),
+        "--queries", str(queries), "--window-start", "0", "-o", str(out), *extra,
     ]  # fmt: skip
     started = time.monotonic()
     result = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
@@ -68,12 +81,19 @@ def attack(
 
 
 def traced(
-    bag: Path, scratch: Path, name: str, stack: str, algorithm: str, queries: int, cache: Path
+    bag: Path,
+    scratch: Path,
+    name: str,
+    stack: str,
+    algorithm: str,
+    queries: int,
+    cache: Path,
+    extra: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """One run of this checkout, with its trace turned into figures."""
     trace_dir = scratch / f"{name}-trace"
     env = {**os.environ, TRACE_ENV: str(trace_dir), CACHE_ENV: str(cache)}
-    wall = attack(REPO, bag, scratch / name, stack, algorithm, queries, env)
+    wall = attack(REPO, bag, scratch / name, stack, algorithm, queries, env, extra)
     events = read_trace(trace_dir)
     start = next(stamp for stamp, _, event, _, _ in events if event == "checked")
     first = next(stamp for stamp, _, event, _, _ in events if event == "journaled")
@@ -90,6 +110,7 @@ def traced(
         "original_adversarial_loss": (summary["original"] or {}).get("adversarial_loss"),
         "best_adversarial_loss": ((summary["best"] or {}).get("score") or {}).get("adversarial_loss"),
         "failed_queries": summary["failed_queries"],
+        "scores": [query["score"]["adversarial_loss"] for query in summary["queries"]],
     }
 
 
@@ -101,6 +122,8 @@ def main() -> int:
         "--repeats", type=int, default=1, help="warm full attacks (and baseline ones) to take medians of"
     )
     parser.add_argument("--baseline", type=Path, default=None, help="another checkout with its .venv, run alternately")
+    parser.add_argument("--lanes", type=int, default=1, help="also compare batched attacks on 1 and on K lanes")
+    parser.add_argument("--skip-cold", action="store_true", help="leave out the cold attack and the overhead run")
     args = parser.parse_args()
     if not KITTI.is_dir():
         print(json.dumps({"error": f"KITTI tracking 0000 not found at {KITTI.resolve()}"}))
@@ -110,12 +133,26 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as folder:
         scratch = Path(folder)
         cache = scratch / "cache"
-        figures["full_cold"] = traced(bag, scratch, "cold", "reference", "bo", args.queries, cache)
-        example = f"{sys.executable} -m advsim_ros.stacks.example"
-        figures["overhead"] = traced(bag, scratch, "overhead", example, "random", args.overhead_queries, cache)
+        if args.skip_cold:  # the caches still have to be built once: an attack of two queries does it
+            traced(bag, scratch, "cold", "reference", "random", 2, cache)
+        else:
+            figures["full_cold"] = traced(bag, scratch, "cold", "reference", "bo", args.queries, cache)
+            example = f"{sys.executable} -m advsim_ros.stacks.example"
+            figures["overhead"] = traced(bag, scratch, "overhead", example, "random", args.overhead_queries, cache)
         warm, baseline = [], []
+        lanes: dict[str, list[dict[str, Any]]] = {}
+        k = args.lanes
+        lane_runs = {
+            f"bo_batch{k}_lanes1": ("bo", ("--param", f"search.bo.batch_size={k}")),
+            f"bo_batch{k}_lanes{k}": ("bo", ("--param", f"search.bo.batch_size={k}", "--lanes", str(k))),
+            "random_lanes1": ("random", ()),
+            f"random_lanes{k}": ("random", ("--lanes", str(k))),
+        }
         for repeat in range(args.repeats):
             warm.append(traced(bag, scratch, f"warm{repeat}", "reference", "bo", args.queries, cache))
+            for name, (algorithm, extra) in lane_runs.items() if k > 1 else ():
+                run = traced(bag, scratch, f"{name}-{repeat}", "reference", algorithm, args.queries, cache, extra)
+                lanes.setdefault(name, []).append(run)
             if args.baseline is not None:
                 env = {key: value for key, value in os.environ.items() if key != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
                 baseline.append(
@@ -129,6 +166,23 @@ def main() -> int:
                 "wall_s": baseline,
                 "median_wall_s": statistics.median(baseline),
                 "ratio_this_to_baseline": figures["full_warm_median_wall_s"] / statistics.median(baseline),
+            }
+        if lanes:
+            medians = {name: statistics.median(run["wall_s"] for run in runs) for name, runs in lanes.items()}
+            figures["lanes"] = {
+                "k": k,
+                "runs": lanes,
+                "median_wall_s": medians,
+                "speedup_bo": medians[f"bo_batch{k}_lanes1"] / medians[f"bo_batch{k}_lanes{k}"],
+                "speedup_random": medians["random_lanes1"] / medians[f"random_lanes{k}"],
+                "same_scores_bo": all(
+                    a["scores"] == b["scores"]
+                    for a, b in zip(lanes[f"bo_batch{k}_lanes1"], lanes[f"bo_batch{k}_lanes{k}"], strict=True)
+                ),
+                "same_scores_random": all(
+                    a["scores"] == b["scores"]
+                    for a, b in zip(lanes["random_lanes1"], lanes[f"random_lanes{k}"], strict=True)
+                ),
             }
     json.dump(figures, sys.stdout, indent=2)
     print()
