@@ -37,7 +37,7 @@ def _drive(
     batches: list[int] = []
 
     def evaluate(perturbations: Sequence[Perturbation]) -> list[float]:
-        assert 1 <= len(perturbations) <= lanes
+        assert len(perturbations) == 1 or lanes > 1
         batches.append(len(perturbations))
         evaluated.extend(perturbations)
         return [_objective(p.delta) for p in perturbations]
@@ -56,13 +56,13 @@ def test_every_number_of_lanes_asks_the_same_queries_under_the_same_ids(name: st
     three, three_batches = _drive(name, small_config, lanes=3)
     assert [_key(p) for p in one] == [_key(p) for p in three]
     assert set(one_batches) == {1}
-    # the original alone, the search in the algorithm's batches of at most 3, then the two re-runs together
+    # the original alone, the search in the algorithm's whole batches, then the two re-runs together
     assert three_batches[0] == 1
     assert three_batches[-1] == 2
     assert [p.query_id for p in three] == list(range(len(three)))
     assert [p.algorithm for p in three][-2:] == ["rerun", "rerun"]
-    if name in ("random", "ga", "nes"):  # batches of several points: the lanes are used
-        assert max(three_batches) == 3
+    if name in ("random", "ga", "nes", "bo"):  # batches of several points: the lanes are used
+        assert max(three_batches) > 1
 
 
 def test_a_resumed_search_evaluates_only_what_the_journal_lacks_even_inside_a_batch(small_config: SmallConfig) -> None:
@@ -71,12 +71,12 @@ def test_a_resumed_search_evaluates_only_what_the_journal_lacks_even_inside_a_ba
         p.query_id: QueryRecord(
             p.query_id, p.algorithm, p.actor_ids, tuple(p.delta.tolist()), {"status": "ok", "adversarial_loss": v}
         )
-        for p in full[:3]  # the original and two queries: the first batch of three was cut after two
+        for p in full[:3]  # the original and two queries: the first batch of four was cut after two
         for v in [_objective(p.delta)]
     }
     resumed, batches = _drive("random", small_config, lanes=3, recorded=recorded)
     assert [_key(p) for p in resumed] == [_key(p) for p in full[3:]]
-    assert batches[0] == 1  # the rest of the interrupted batch
+    assert batches[0] == 2  # the rest of the interrupted batch of four
 
 
 def test_bo_with_a_batch_size_proposes_distinct_points_the_same_for_the_same_seed(small_config: SmallConfig) -> None:

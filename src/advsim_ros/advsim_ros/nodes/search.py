@@ -8,15 +8,16 @@ search is over it says so on /advsim/search_status (latched): the orchestrator's
 
 Evaluation lanes (`advsim attack --lanes K`): the further lanes are whole graphs (perturber,
 player, lidar_resim, stack, scorer) on ROS domains of their own, listed in ``lane_domains``.
-The node joins each of them with a context of its own and sends the i-th query of a batch to
-lane i, so up to K queries run at once; every lane's perturber must have made the same actor
-selection as this graph's before it gets a query.
+The node joins each of them with a context of its own and hands the queries of the algorithm's
+batch out in order, each lane the next one as soon as it is free, so up to K queries run at once;
+every lane's perturber must have made the same actor selection as this graph's before it gets a query.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -128,19 +129,36 @@ class SearchNode(GraphNode):
             return self._condition.wait_for(lambda: self._stop.is_set() or ready(), timeout) and not self._stop.is_set()
 
     def _evaluate(self, perturbations: Sequence[Perturbation]) -> list[float]:
-        """Publish the queries, the i-th to lane i, and wait for their scores: L_adv, NaN when failed or timed out."""
+        """Hand the queries to the lanes, each lane the next one as soon as it is free; wait for every score.
+
+        Returns L_adv per query, NaN when it failed or no score came within ``score_timeout`` of its sending.
+        """
         publishers = [self.publish_perturbation, *(lane.publish_perturbation for lane in self._lanes)]
-        for publish, perturbation in zip(publishers, perturbations, strict=False):
-            publish(perturbation_msg(perturbation, self.run_id))
-            self._asked += 1
-            self.trace("perturbation_sent", perturbation.query_id)
-        self.publish_status(search_status_msg(SearchStatusRecord(self._asked, finished=False), self.run_id))
-        ids = [perturbation.query_id for perturbation in perturbations]
-        scored = self._wait(lambda: all(query_id in self._scores for query_id in ids), self.config.score_timeout)
-        if not scored and not self._stop.is_set():
-            late = [query_id for query_id in ids if query_id not in self._scores]
-            self.get_logger().error(f"queries {late}: no score within {self.config.score_timeout} s")
-        return [self._scores.get(query_id, math.nan) for query_id in ids]
+        waiting = list(perturbations)
+        busy: dict[int, tuple[int, float]] = {}  # lane -> (query id, sent at [monotonic s])
+        timed_out: set[int] = set()
+        while (waiting or busy) and not self._stop.is_set():
+            for lane in range(len(publishers)):
+                if lane not in busy and waiting:
+                    perturbation = waiting.pop(0)
+                    publishers[lane](perturbation_msg(perturbation, self.run_id))
+                    busy[lane] = (perturbation.query_id, time.monotonic())
+                    self._asked += 1
+                    self.trace("perturbation_sent", perturbation.query_id)
+                    self.publish_status(search_status_msg(SearchStatusRecord(self._asked, finished=False), self.run_id))
+            deadline = min(sent for _, sent in busy.values()) + self.config.score_timeout
+            self._wait(
+                lambda: any(query_id in self._scores for query_id, _ in busy.values()),
+                max(0.0, deadline - time.monotonic()),
+            )
+            for lane, (query_id, sent) in list(busy.items()):
+                if query_id in self._scores:
+                    del busy[lane]
+                elif time.monotonic() - sent >= self.config.score_timeout:
+                    self.get_logger().error(f"query {query_id}: no score within {self.config.score_timeout} s")
+                    timed_out.add(query_id)
+                    del busy[lane]
+        return [math.nan if p.query_id in timed_out else self._scores.get(p.query_id, math.nan) for p in perturbations]
 
     def _lanes_ready(self, selection: Any) -> bool:
         """Wait until every further lane's perturber selected the same actors as this graph's."""

@@ -1,8 +1,9 @@
 """Driving one attack's search: the original scenario, the algorithm's queries, then re-runs of the best.
 
-``drive_search`` asks the algorithm for up to ``lanes`` points at a time and evaluates them
-together through a callback (the search node publishes each to an evaluation lane, a graph of
-its own, and waits for all their scores). The algorithm proposes the same points whatever the
+``drive_search`` asks the algorithm for one point at a time or, with several evaluation lanes,
+for its whole batch, and evaluates it through a callback (the search node hands the batch's
+queries to its lanes, graphs of their own, each lane taking the next query as soon as it is
+free, and waits for all their scores). The algorithm proposes the same points whatever the
 batching (core.search.base), and query ids are handed out in the order of the points, so the
 queries, their ids and (for a deterministic stack) their scores do not depend on ``lanes``.
 Queries already in the journal are not evaluated again: their recorded values are told instead,
@@ -91,7 +92,7 @@ def drive_search(
 ) -> None:
     """Run the whole search (see the module docstring); returns early when ``stopped()``.
 
-    ``evaluate`` gets at most ``lanes`` queries at once.
+    ``evaluate`` gets one query at a time when ``lanes`` is 1, else whole batches.
     """
     if lanes < 1:
         raise ScenarioError(f"search lanes: must be at least 1, got {lanes}")
@@ -102,7 +103,7 @@ def drive_search(
     points: dict[int, FloatArray] = {}
     values: dict[int, float] = {}
     while not algorithm.done and not stopped():
-        asked = algorithm.ask(lanes)
+        asked = algorithm.ask(1 if lanes == 1 else None)
         batch = [
             Perturbation(query_id + i, scenario_id, actor_ids, point, algorithm.name) for i, point in enumerate(asked)
         ]
@@ -112,9 +113,10 @@ def drive_search(
             points[perturbation.query_id], values[perturbation.query_id] = perturbation.delta, value
         query_id += len(batch)
     reruns = [best for best in reversed(ranked_queries(values, config.rerun_top)) for _ in range(config.reruns)]
-    for start in range(0, len(reruns), lanes):  # the best last: its replay is recorded
+    step = 1 if lanes == 1 else max(1, len(reruns))
+    for start in range(0, len(reruns), step):  # the best last: its replay is recorded
         if stopped():
             return
-        chunk = reruns[start : start + lanes]
+        chunk = reruns[start : start + step]
         run([Perturbation(query_id + i, scenario_id, actor_ids, points[best], RERUN) for i, best in enumerate(chunk)])
         query_id += len(chunk)
