@@ -8,13 +8,16 @@ import pytest
 from advsim_ros.core.lidar.boxes import Region, inside, invert_rigid, to_box_frame, track_pose_at, yaw_pose
 from advsim_ros.core.lidar.novel_view import (
     ACTOR,
+    BACKGROUND,
+    GROUND_FILL,
+    MISS,
     RenderCalibration,
     render_from_model,
     render_rays,
     renderer_for,
 )
 from advsim_ros.core.lidar.resim import ResimError, ResimModel
-from advsim_ros.core.lidar.sensor import xyz_of
+from advsim_ros.core.lidar.sensor import rotate, xyz_of
 from advsim_ros.core.types import ActorClass, ActorTrack
 from advsim_ros.io.synthetic import SyntheticLog
 
@@ -87,6 +90,33 @@ def test_the_same_generator_state_gives_the_same_sweep(short_log: SyntheticLog, 
     assert calibration.background_drop.shape == (short_model.sensor.num_beams,)
     assert calibration.range_noise_std == pytest.approx(0.01, abs=0.005)  # the log's 1 cm noise
     assert np.all(np.abs(calibration.background_bias) <= 0.02)  # exact meshes: no bias to speak of
+
+
+def test_the_background_cast_in_tiles_is_the_cast_in_range_image_order(
+    short_log: SyntheticLog, short_model: ResimModel
+) -> None:
+    """The renderer casts the background tile after tile (speed): every ray ends where one plain cast puts it."""
+    renderer = renderer_for(short_model)
+    pose = short_log.scenario.sweeps[FRAME].sensor_pose @ yaw_pose([0.5, 1.0, 0.0], 0.1)
+    rays = renderer.cast(pose, {}, np.random.default_rng(0), RenderCalibration.none(short_model.sensor.num_beams))
+    origins = rotate(renderer.origins, pose[:3, :3]) + pose[:3, 3]
+    hits = short_model.background_caster.cast(origins, rotate(renderer.directions, pose[:3, :3]))
+    assert hits.triangles is not None
+    both = np.isfinite(hits.ranges) & np.isfinite(rays.ranges)
+    assert np.mean(both) > 0.5
+    # The rays are made in float32 either way; only rays grazing a triangle's edge may differ.
+    assert np.mean(np.isfinite(hits.ranges) == np.isfinite(rays.ranges)) >= 0.9999
+    assert np.mean(np.abs(hits.ranges[both] - rays.ranges[both]) <= 1e-4) >= 0.9999
+    same = both.copy()
+    same[both] = np.abs(hits.ranges[both] - rays.ranges[both]) <= 1e-4
+    assert np.mean(rays.surfel[same] == hits.triangles[same] // 2) >= 0.999
+    assert np.array_equal(rays.intensity[same & (rays.surfel == hits.triangles // 2)],
+                          hits.intensity[same & (rays.surfel == hits.triangles // 2)])  # fmt: skip
+    fill = hits.triangles >= renderer.fill_triangles
+    assert set(np.unique(rays.kind).tolist()) <= {MISS, BACKGROUND, GROUND_FILL}
+    assert np.mean((rays.kind[same] == GROUND_FILL) == fill[same]) == 1.0
+    assert np.all(rays.kind[np.isinf(rays.ranges)] == MISS)
+    assert np.all(rays.surfel[rays.kind == MISS] == -1)
 
 
 def test_actors_are_rendered_where_they_are_placed(short_log: SyntheticLog, short_model: ResimModel) -> None:

@@ -7,6 +7,7 @@ import pytest
 
 from advsim_ros.core.lidar.boxes import yaw_pose
 from advsim_ros.core.lidar.raycast import (
+    NO_TRIANGLE,
     PlacedSurface,
     Surface,
     SurfaceCaster,
@@ -35,6 +36,24 @@ def test_a_surface_is_cast_at_its_pose_without_moving_its_triangles() -> None:
     assert hits.ranges[0] == pytest.approx(9.5, abs=1e-5)
     moved = caster.surface.transformed(pose)
     assert SurfaceCaster(moved).cast(np.zeros(3), ALONG_X).ranges[0] == pytest.approx(9.5, abs=1e-5)
+
+
+def test_the_first_hits_come_unconverted_and_agree_with_cast() -> None:
+    caster = SurfaceCaster(cuboid_surface([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], 0.4))
+    origins, directions = np.array([-5.0, 0.0, 0.0]), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    rays = np.concatenate([np.broadcast_to(origins, directions.shape), directions], axis=1).astype(np.float32)
+    ranges, triangles = caster.cast_first(rays)
+    assert ranges.dtype == np.float32
+    assert triangles.dtype == np.uint32
+    hits = caster.cast(origins, directions)
+    assert hits.triangles is not None
+    assert ranges.tolist() == hits.ranges.tolist()
+    assert triangles[1] == NO_TRIANGLE
+    assert int(triangles[0]) == hits.triangles[0]
+    empty = SurfaceCaster(Surface(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32), np.zeros(0)))
+    nothing, none = empty.cast_first(rays)
+    assert np.all(np.isinf(nothing))
+    assert np.all(none == NO_TRIANGLE)
 
 
 def test_all_crossings_come_sorted_by_ray_and_range() -> None:

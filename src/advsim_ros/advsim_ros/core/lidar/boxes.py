@@ -95,8 +95,10 @@ def rays_hit_region(origins: FloatArray, directions: FloatArray, pose: FloatArra
         inverse = 1.0 / local
         first = (region.lower - origin) * inverse
         second = (region.upper - origin) * inverse
-    near = np.nanmax(np.minimum(first, second), axis=1)
-    far = np.nanmin(np.maximum(first, second), axis=1)
+    # NaN (a ray in a slab's plane) is left out, as by nanmax / nanmin, column by column (much faster for 3).
+    entry, leave = np.minimum(first, second), np.maximum(first, second)
+    near = np.fmax(np.fmax(entry[:, 0], entry[:, 1]), entry[:, 2])
+    far = np.fmin(np.fmin(leave[:, 0], leave[:, 1]), leave[:, 2])
     result: BoolArray = (far >= np.maximum(near, 0.0)) & np.isfinite(far)
     return result
 

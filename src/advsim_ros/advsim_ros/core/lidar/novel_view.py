@@ -20,7 +20,10 @@ sweeps' own fields (x, y, z, intensity, ring where the log has them; other field
 after beam, each beam one counter-clockwise turn from the log's scan start, like the log.
 
 The per-model part (the grid of rays, the background caster the model built) is made once
-and kept with the model (``renderer_for``), so a sweep costs its ray casts only.
+and kept with the model (``renderer_for``), so a sweep costs its ray casts only. The
+background is cast in tiles of 8 beams x 32 azimuth steps (neighbouring rays meet the same
+part of the scene: ~30 % faster in Embree than beam after beam), and nothing on a sweep's
+path goes through BLAS (its threads stall on a busy machine).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import numpy.typing as npt
 from advsim_ros.core.lidar.boxes import AngularWindow, BoolArray, Region, invert_rigid, rays_hit_region, track_pose_at
 from advsim_ros.core.lidar.errors import ResimError
 from advsim_ros.core.lidar.resim import ResimModel
-from advsim_ros.core.lidar.sensor import RING_FIELD, azimuth_columns, spherical, xyz_of
+from advsim_ros.core.lidar.sensor import RING_FIELD, azimuth_columns, rotate, spherical, xyz_of
 from advsim_ros.core.types import ActorTrack, FloatArray, IntArray, Scenario
 
 # What a ray ended on (RenderedRays.kind).
@@ -94,16 +97,30 @@ class ModelRenderer:
         columns = np.tile(np.arange(sensor.num_azimuths, dtype=np.int64), sensor.num_beams)
         self.rows, self.columns = rows, columns
         origins, directions = model.beam_rows.cell_rays(rows, columns)
+        if np.any(origins[:, :2] != 0.0):
+            raise ResimError("render: the beams' origins must lie on the sensor's z axis")
         self.origins: FloatArray = origins
         self.directions: FloatArray = directions
-        self._origins32 = origins.astype(np.float32)
-        self._directions32 = directions.astype(np.float32)
+        # The background is cast in small tiles of neighbouring rays (beams x azimuth steps): a batch
+        # of rays then meets the same part of the scene, ~30 % faster in Embree than beam after beam.
+        cast_order = _tile_order(sensor.num_beams, sensor.num_azimuths)
+        self._cast_inverse = np.argsort(cast_order)
+        self._cast_heights = origins[cast_order, 2].astype(np.float32)
+        self._cast_directions = np.ascontiguousarray(directions[cast_order].T, dtype=np.float32)  # (3, R)
         surfels = model.background.surfels
         # Surfels become two triangles each; the ground fill was appended last.
         self.fill_triangles = 2 * (surfels.count - model.background.fill_count)
+        # What a hit on each background triangle returns; the last entry stands for no hit.
+        triangle_intensity = model.background_caster.surface.intensity
+        self._no_triangle = triangle_intensity.shape[0]
+        self._triangle_intensity = np.append(triangle_intensity, 0.0).astype(np.float64)
         self.beam_height = float(np.max(np.abs(model.beam_rows.beam_heights)))
         self.order = self._scan_order()
         self.row_labels = self._row_labels()
+        # The rays in firing order, for the points: beam origin heights and direction components.
+        self._fired_heights = origins[self.order, 2]
+        self._fired_directions = np.ascontiguousarray(directions[self.order].T)  # (3, R)
+        self._fired_labels = self.row_labels[rows[self.order]]
         self._calibrations: dict[str, RenderCalibration] = {}
 
     @property
@@ -145,12 +162,7 @@ class ModelRenderer:
         if unknown:
             raise ResimError(f"render: no asset for actors {unknown} (only actors of the log can be rendered)")
         sensor_T_world = invert_rigid(sensor_pose)
-        hits = model.background_caster.cast_prepared(self._world_rays(sensor_pose))
-        ranges, intensity = hits.ranges, hits.intensity
-        assert hits.triangles is not None
-        surface = np.where(hits.triangles >= self.fill_triangles, GROUND_FILL, BACKGROUND)
-        kind = np.where(np.isfinite(ranges), surface, MISS)
-        surfel = np.where(kind != MISS, hits.triangles // 2, -1)
+        ranges, intensity, kind, surfel = self._cast_background(sensor_pose)
         actor = np.full(ranges.shape[0], -1, dtype=np.int64)
         actor_ids = tuple(sorted(actor_poses))
         for index, actor_id in enumerate(actor_ids):
@@ -166,27 +178,55 @@ class ModelRenderer:
             kind[chosen] = ACTOR
             actor[chosen] = index
             surfel[chosen] = -1
-        background = (kind == BACKGROUND) | (kind == GROUND_FILL)
-        ranges[background] += calibration.background_bias[self.rows[background]]
+        # Per beam (rows of the range image): the bias and drop of background hits.
+        image = (self.model.sensor.num_beams, -1)
+        background = ((kind == BACKGROUND) | (kind == GROUND_FILL)).reshape(image)
+        ranges.reshape(image)[...] += np.where(background, calibration.background_bias[:, None], 0.0)
         if calibration.range_noise_std > 0:
-            ranges = ranges + rng.normal(0.0, calibration.range_noise_std, ranges.shape[0])
+            ranges += rng.normal(0.0, calibration.range_noise_std, ranges.shape[0])
         sensor = model.sensor
         returned = np.isfinite(ranges) & (ranges >= sensor.min_range) & (ranges <= sensor.max_range)
-        chance = np.zeros(ranges.shape[0])
-        chance[background] = calibration.background_drop[self.rows[background]]
-        on_actor = kind == ACTOR
+        chance = np.where(background, calibration.background_drop[:, None], 0.0).reshape(-1)
+        on_actor = np.flatnonzero(actor >= 0)
         drops = np.array([model.assets[actor_id].drop_probability for actor_id in actor_ids] + [0.0])
         chance[on_actor] = drops[actor[on_actor]]
         returned &= rng.random(ranges.shape[0]) >= chance
         return RenderedRays(ranges, intensity, kind, actor, surfel, returned, actor_ids)
 
+    def _cast_background(self, sensor_pose: FloatArray) -> tuple[FloatArray, FloatArray, IntArray, IntArray]:
+        """(R,) range (inf: no hit), intensity, kind (MISS, BACKGROUND, GROUND_FILL) and surfel (-1: none)
+        of every ray on the background, in range-image order."""
+        t_hit, triangle = self.model.background_caster.cast_first(self._world_rays(sensor_pose))
+        # Back from the cast order to range-image order.
+        ranges = t_hit[self._cast_inverse].astype(np.float64)
+        triangles = np.minimum(triangle[self._cast_inverse], self._no_triangle).astype(np.int64)
+        intensity: FloatArray = self._triangle_intensity[triangles]
+        hit = triangles < self._no_triangle
+        surface = np.where(triangles >= self.fill_triangles, GROUND_FILL, BACKGROUND)
+        kind: IntArray = np.where(hit, surface, MISS)
+        surfel: IntArray = np.where(hit, triangles // 2, -1)
+        return ranges, intensity, kind, surfel
+
     def _world_rays(self, sensor_pose: FloatArray) -> npt.NDArray[np.float32]:
-        """(R, 6) float32 origins and directions of every ray in the world frame."""
+        """(R, 6) float32 origins and directions of every ray in the world frame, in the cast order.
+
+        Written out per component rather than as a matrix product: on a busy machine BLAS's
+        threads stall on (R, 3) x (3, 3) products (60 ms instead of 2).
+        """
         rotation = sensor_pose[:3, :3].astype(np.float32)
-        rays = np.empty((self.rows.shape[0], 6), dtype=np.float32)
-        np.matmul(self._origins32, rotation.T, out=rays[:, :3])
-        rays[:, :3] += sensor_pose[:3, 3].astype(np.float32)
-        np.matmul(self._directions32, rotation.T, out=rays[:, 3:])
+        translation = sensor_pose[:3, 3].astype(np.float32)
+        directions = self._cast_directions
+        rays = np.empty((directions.shape[1], 6), dtype=np.float32)
+        column = np.empty(directions.shape[1], dtype=np.float32)
+        for axis in range(3):
+            # The beams' origins lie on the sensor's z axis.
+            np.multiply(self._cast_heights, rotation[axis, 2], out=column)
+            column += translation[axis]
+            rays[:, axis] = column
+            np.multiply(directions[0], rotation[axis, 0], out=column)
+            column += directions[1] * rotation[axis, 1]
+            column += directions[2] * rotation[axis, 2]
+            rays[:, 3 + axis] = column
         return rays
 
     def _actor_cells(self, pose: FloatArray, size: FloatArray) -> IntArray:
@@ -210,15 +250,19 @@ class ModelRenderer:
 
     def points(self, rays: RenderedRays, dtype: np.dtype) -> np.ndarray:
         """The returned rays as points of `dtype` (sensor frame), in the log's firing order."""
-        chosen = self.order[rays.returned[self.order]]
-        xyz = self.origins[chosen] + self.directions[chosen] * rays.ranges[chosen, None]
+        fired = rays.returned[self.order]
+        chosen = self.order[fired]
+        ranges = rays.ranges[chosen]
         points = np.zeros(chosen.shape[0], dtype=dtype)
-        points["x"], points["y"], points["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        # The beams' origins lie on the sensor's z axis.
+        points["x"] = self._fired_directions[0][fired] * ranges
+        points["y"] = self._fired_directions[1][fired] * ranges
+        points["z"] = self._fired_heights[fired] + self._fired_directions[2][fired] * ranges
         names = dtype.names or ()
         if "intensity" in names:
             points["intensity"] = rays.intensity[chosen]
         if RING_FIELD in names:
-            points[RING_FIELD] = self.row_labels[self.rows[chosen]]
+            points[RING_FIELD] = self._fired_labels[fired]
         return points
 
     # ----- calibration --------------------------------------------------------------------
@@ -281,7 +325,7 @@ def calibrate_rendering(
         hit += np.bincount(renderer.rows[background], minlength=sensor.num_beams)
         kept += np.bincount(renderer.rows[background & np.isfinite(logged)], minlength=sensor.num_beams)
         normals = renderer.model.background.surfels.normals[np.maximum(rays.surfel, 0)]
-        directions = renderer.directions @ sweep.sensor_pose[:3, :3].T
+        directions = rotate(renderer.directions, sweep.sensor_pose[:3, :3])
         facing = np.abs(np.einsum("ij,ij->i", normals, directions)) >= _NOISE_MIN_COSINE
         with np.errstate(invalid="ignore"):
             residual = logged - rays.ranges
@@ -298,6 +342,22 @@ def calibrate_rendering(
     beams = [np.concatenate(parts) for parts in per_beam]
     bias = np.array([float(np.median(values)) if values.size else 0.0 for values in beams])
     return RenderCalibration(background_drop=drop, range_noise_std=min(noise, _MAX_NOISE), background_bias=bias)
+
+
+_TILE = (8, 32)  # beams x azimuth steps of a tile of the background cast
+
+
+def _tile_order(num_beams: int, num_azimuths: int) -> IntArray:
+    """(B * A,) the cells (row-major indices) tile after tile, each tile row-major."""
+    cells = np.arange(num_beams * num_azimuths, dtype=np.int64).reshape(num_beams, num_azimuths)
+    tile_rows, tile_columns = _TILE
+    order = [
+        cells[top : top + tile_rows, left : left + tile_columns].reshape(-1)
+        for top in range(0, num_beams, tile_rows)
+        for left in range(0, num_azimuths, tile_columns)
+    ]
+    result: IntArray = np.concatenate(order)
+    return result
 
 
 _RENDERERS: weakref.WeakKeyDictionary[ResimModel, ModelRenderer] = weakref.WeakKeyDictionary()

@@ -24,6 +24,9 @@ AnyFloatArray = npt.NDArray[np.floating[Any]]  # any float dtype on input; store
 AnyIntArray = npt.NDArray[np.integer[Any]]
 
 
+NO_TRIANGLE = int(o3d.t.geometry.RaycastingScene.INVALID_ID)  # the triangle of a ray that hits nothing (cast_first)
+
+
 def as_tensor(array: np.ndarray) -> o3d.core.Tensor:
     """An Open3D tensor sharing the memory of a C-contiguous numpy array."""
     return o3d.core.Tensor.from_numpy(np.ascontiguousarray(array))
@@ -180,6 +183,20 @@ class SurfaceCaster:
         return RayHits(
             ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1), triangles=np.where(hit, primitive, -1)
         )
+
+    def cast_first(self, rays: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32]]:
+        """Each ray's first hit as Embree gives it, with none of ``cast_prepared``'s conversions.
+
+        `rays` as in ``cast_prepared``; returns the ranges (N,) float32 (inf: no hit) and the
+        triangles (N,) uint32 (``NO_TRIANGLE``: no hit).
+        """
+        count = rays.shape[0]
+        if count == 0 or self.surface.num_triangles == 0:
+            return np.full(count, np.inf, dtype=np.float32), np.full(count, NO_TRIANGLE, dtype=np.uint32)
+        answer = self._scene.cast_rays(as_tensor(rays))
+        ranges: npt.NDArray[np.float32] = answer["t_hit"].numpy()
+        triangles: npt.NDArray[np.uint32] = answer["primitive_ids"].numpy()
+        return ranges, triangles
 
     def cast_all(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None = None) -> Intersections:
         """Every crossing of the rays (as in ``cast``) with the surface, not only the first."""

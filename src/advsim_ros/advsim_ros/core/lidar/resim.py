@@ -44,9 +44,9 @@ from advsim_ros.core.lidar.log_points import collect_log_points
 from advsim_ros.core.lidar.model_cache import model_arrays, model_parts, scenario_digest
 from advsim_ros.core.lidar.optics import estimate_optics
 from advsim_ros.core.lidar.ray_table import SweepGeometry
-from advsim_ros.core.lidar.raycast import RayHits, SurfaceCaster
+from advsim_ros.core.lidar.raycast import NO_TRIANGLE, RayHits, SurfaceCaster
 from advsim_ros.core.lidar.rewrite import ActorResimStats, ResimStats, rewrite_sweep
-from advsim_ros.core.lidar.sensor import BeamRows, spherical, xyz_of
+from advsim_ros.core.lidar.sensor import BeamRows, rotate, spherical, xyz_of
 from advsim_ros.core.lidar.sensor_estimation import estimate_sensor_model
 from advsim_ros.core.types import ActorTrack, FloatArray, Scenario, Sweep
 
@@ -178,31 +178,37 @@ class ResimModel:
         through with its pass probability (glass); misses are inf."""
         asset = self.assets[actor_id]
         caster = self.asset_caster(actor_id)
-        hits = caster.cast(origins, directions, pose)
         passing = asset.pass_probability
-        if passing is None:
-            return hits
+        count = directions.shape[0]
+        if passing is None or count == 0:
+            return caster.cast(origins, directions, pose)
+        # The rays in the asset's frame (as SurfaceCaster.cast makes them), cast without its conversions.
+        rotation_t = pose[:3, :3].T
+        rays = np.concatenate([rotate(origins - pose[:3, 3], rotation_t), rotate(directions, rotation_t)], axis=1)
+        first, triangle = caster.cast_first(rays.astype(np.float32))
+        ranges = first.astype(np.float64)
+        triangles = np.where(triangle == NO_TRIANGLE, -1, triangle.astype(np.int64))
         # Walk each ray through the surfels it crosses: only rays that pass a surfel are cast again,
         # from just beyond it (which also skips the twin triangle of the same surfel).
-        start = np.zeros(directions.shape[0])  # where the current cast begins along the ray [m]
-        active = np.arange(directions.shape[0])
+        active = np.arange(count)
         for _ in range(_MAX_PASSES):
-            assert hits.triangles is not None
-            surfel = np.maximum(hits.triangles[active], 0) // 2
-            passes = np.isfinite(hits.ranges[active]) & (rng.random(active.shape[0]) < passing[surfel])
-            if not np.any(passes):
+            surfel = np.maximum(triangles[active], 0) >> 1
+            passes = np.isfinite(ranges[active]) & (rng.random(active.shape[0]) < passing[surfel])
+            if not passes.any():
                 break
             active = active[passes]
-            start[active] = hits.ranges[active] + _PASS_STEP
-            further = caster.cast(origins[active] + directions[active] * start[active, None], directions[active], pose)
-            assert further.triangles is not None
-            found = np.isfinite(further.ranges)
-            hits.ranges[active] = np.where(found, start[active] + further.ranges, np.inf)
-            hits.intensity[active] = further.intensity
-            hits.source[active] = further.source
-            hits.triangles[active] = further.triangles
+            start = ranges[active] + _PASS_STEP  # where the next cast begins along the ray [m]
+            restart = rays[active]
+            restart[:, :3] += restart[:, 3:] * start[:, None]
+            further, triangle = caster.cast_first(restart.astype(np.float32))
+            found = np.isfinite(further)
+            ranges[active] = np.where(found, start + further, np.inf)
+            triangles[active] = np.where(found, triangle.astype(np.int64), -1)
             active = active[found]
-        return hits
+        hit = triangles >= 0
+        intensity = np.zeros(count)
+        intensity[hit] = caster.surface.intensity[triangles[hit]]
+        return RayHits(ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1), triangles=triangles)
 
 
 __all__ = [
