@@ -39,6 +39,9 @@ _STACK = (
     Argument("remap_mode", "--remap-mode", "relay", "relay or rename"),
     Argument("no_restart", "--no-restart", "false", "true: do not restart the stack when it exits", "flag"),
     Argument("loop", "--loop", "open", "open (the decision plan is scored) or closed (the ego drives the plans)"),
+    Argument(
+        "reactive_actors", "--reactive-actors", "false", "true: moving vehicles react to the ego (closed loop)", "flag"
+    ),
     Argument("plan_timeout", "--plan-timeout", "10.0", "longest wait for a plan per frame [s]"),
     Argument("param", "--param", "", "NODE.KEY=VALUE node parameters, space-separated (shell quoting)", "list"),
     Argument("connect_timeout", "--connect-timeout", "120.0", "longest wait for the stack to connect [s]"),
@@ -55,6 +58,7 @@ ATTACK = (
     Argument("window_start", "--window-start", "", "first frame of the 6 s window (empty: the curated one)"),
     Argument("reruns", "--reruns", "2", "evaluate the best query this many more times"),
     Argument("rerun_top", "--rerun-top", "1", "re-run the N best queries"),
+    Argument("lanes", "--lanes", "1", "evaluate up to N queries of a batch at once, each on its own graph"),
 )
 
 REPLAY = (

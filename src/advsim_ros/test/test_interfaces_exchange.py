@@ -131,6 +131,7 @@ SAMPLES: dict[str, list[dict]] = {
             "predictions": {"header": HEADER, "run_id": 0, "query_id": 0, "tracks": [_track("p")]},
             "has_executed": True,
             "executed": _track("ego"),
+            "reacted_actors": [_track("7")],
         }
     ],
     "advsim_msgs/msg/FrameRequest": [
@@ -144,6 +145,7 @@ SAMPLES: dict[str, list[dict]] = {
                 "position": {"x": 10.5, "y": -3.25, "z": 0.125},
                 "orientation": {"x": 0.0, "y": 0.0, "z": 0.6, "w": 0.8},
             },
+            "reacted_actors": [_track("7")],
         }
     ],
     "advsim_msgs/msg/SearchStatus": [{"run_id": 5, "queries_asked": 78, "finished": True}],
