@@ -147,7 +147,8 @@ def test_advsim_doctor_proposes_a_profile_for_a_foreign_stack_and_passes_it_with
         "doctor", str(synthetic_bag), "--stack-profile", str(_gnss_profile(tmp_path)), "-o", str(tmp_path / "ok"),
         timeout=600,
     )  # fmt: skip
-    assert profiled.returncode == 0, profiled.stdout[-3000:]
+    stack_logs = "\n".join(f"{log.name}: {log.read_text()[-1500:]}" for log in (tmp_path / "ok").glob("run/logs/*.log"))
+    assert profiled.returncode == 0, profiled.stdout[-3000:] + "\n" + stack_logs
     assert "verdict: ready to attack" in profiled.stdout
     rows = {line.split()[0]: line for line in profiled.stdout.splitlines() if line.startswith("/")}
     assert rows["/ego/odom"].split()[-1] == "ok"

@@ -54,6 +54,7 @@ class ForeignStack(Node):
         self.yaw = 0.0
         self.speed = 0.0
         self.origin: tuple[float, float, float] | None = None  # the first fix (gnss)
+        self.counts = {"sweeps": 0, "poses": 0, "ticks": 0, "plans": 0}  # logged at the first of each, for diagnosis
         if dialect == "gnss":
             self.create_subscription(PointCloud2, "/points_raw", self.on_sweep, qos_profile_sensor_data)
             self.create_subscription(NavSatFix, "/fix", self.on_fix, 10)
@@ -76,7 +77,15 @@ class ForeignStack(Node):
             self.predictions = self.create_publisher(PredictedObjects, f"{objects}/objects", 10)
         self.create_timer(0.1, self.on_timer)  # on the sim clock (use_sim_time from the profile)
 
+    def _count(self, event: str) -> None:
+        """Logs the 1st, 50th and every 200th of each event, so that a run that answered nothing says how far it got."""
+        self.counts[event] += 1
+        if self.counts[event] in (1, 50) or self.counts[event] % 200 == 0:
+            now = self.get_clock().now().nanoseconds / 1e9
+            self.get_logger().info(f"{event} {self.counts} at clock {now:.2f} s")
+
     def on_sweep(self, cloud: PointCloud2) -> None:
+        self._count("sweeps")
         points = cloud_to_points(cloud)
         x, y, z = (np.asarray(points[axis], dtype=np.float64) for axis in "xyz")
         ahead = (x > 2.0) & (x < 20.0) & (np.abs(y) < 1.5) & (z > -1.2)
@@ -91,12 +100,14 @@ class ForeignStack(Node):
             self.get_logger().info(f"per-sensor sweep received in frame {cloud.header.frame_id}")
 
     def on_fix(self, fix: NavSatFix) -> None:
+        self._count("poses")
         if self.origin is None:
             self.origin = (fix.latitude, fix.longitude, fix.altitude)
         east, north, _ = pymap3d.geodetic2enu(fix.latitude, fix.longitude, fix.altitude, *self.origin)
         self._moved_to(float(east), float(north))
 
     def on_state(self, state: Odometry) -> None:
+        self._count("poses")
         self._moved_to(state.pose.pose.position.x, state.pose.pose.position.y)
         self.speed = math.hypot(state.twist.twist.linear.x, state.twist.twist.linear.y)
 
@@ -107,6 +118,7 @@ class ForeignStack(Node):
         self.position = (x, y)
 
     def on_timer(self) -> None:
+        self._count("ticks")
         if self.position is None or self.previous is None:
             return  # no heading yet
         reach = 6.0 if self.blocked else LOOKAHEAD  # a spatial plan that ends early is one that stops
@@ -114,6 +126,7 @@ class ForeignStack(Node):
         x0, y0 = self.position
         poses = [_pose(x0 + d * math.cos(self.yaw), y0 + d * math.sin(self.yaw), self.yaw) for d in distances]
         stamp = self.get_clock().now().to_msg()
+        self._count("plans")
         if self.dialect == "gnss":
             path = PathMsg()
             path.header.stamp, path.header.frame_id = stamp, "map"
