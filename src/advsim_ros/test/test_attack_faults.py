@@ -1,4 +1,4 @@
-"""Faults, for real: kill -9 of `advsim attack`, a stray graph on the same ROS domain, a non-deterministic
+"""Faults, for real: kill -9 of `advsim attack`, a full disk, a stray graph on the same ROS domain, a non-deterministic
 stack, a stack that never connects, SIGINT and SIGTERM, and bad input that must start nothing.
 
 Every test runs `advsim attack` as a user would (a process of its own) on a 6 s KITTI 0000 window
@@ -8,13 +8,15 @@ disturbs it while it runs.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -152,6 +154,73 @@ def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_r
     summary = json.loads((out / "summary.json").read_text())
     assert _measured(summary) == _measured(reference)  # as if it had never been interrupted
     assert _timeless(summary["best"]) == _timeless(reference["best"])
+
+
+@contextlib.contextmanager
+def _small_disk(path: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of ``size`` mounted at ``path``: a disk that really fills (ENOSPC), unmounted afterwards."""
+    path.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                             capture_output=True, text=True, check=False)  # fmt: skip
+    if mounted.returncode != 0:
+        pytest.skip(
+            f"a full disk is simulated with a small tmpfs, and mounting one needs root: {mounted.stderr.strip()}"
+        )
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "--lazy", str(path)], check=False)
+
+
+def _fill(disk: Path) -> Path:
+    """Take every free byte of ``disk`` with one file; returns it (delete it to free the space)."""
+    filler = disk / "filler"
+    with filler.open("wb", buffering=0) as stream:
+        for size in (1 << 20, 1 << 12, 1):  # whole megabytes, then what is left of the last pages
+            with contextlib.suppress(OSError):
+                while True:
+                    stream.write(b"\0" * size)
+    assert shutil.disk_usage(disk).free == 0
+    return filler
+
+
+@pytest.mark.slow
+def test_a_full_disk_ends_the_attack_with_one_line_keeps_every_finished_query_and_leaves_nothing(
+    kitti_window_bag: Path,
+    tmp_path: Path,
+    uninterrupted: tuple[str, dict[str, Any]],
+    zombie_shm_segments: Callable[[], int],
+) -> None:
+    stack, reference = uninterrupted
+    with _small_disk(tmp_path / "disk", "256m") as disk:
+        out = disk / "attack"
+        argv = _attack_argv(kitti_window_bag, out, stack)
+        zombie_shm_segments()  # what earlier tests left
+        orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            assert wait_for(lambda: len(_journaled(out)) >= 3 or orchestrator.poll() is not None, timeout=600)
+            assert orchestrator.poll() is None, "the attack ended before the disk filled"
+            graph = _children(orchestrator.pid)
+            filler = _fill(disk)  # the disk is full from here on, as if another program had taken it
+            journaled = _journaled(out)
+            _, errors = orchestrator.communicate(timeout=300)
+        finally:
+            orchestrator.kill()
+        assert orchestrator.returncode == 1, errors
+        assert "Traceback" not in errors
+        last = errors.strip().splitlines()[-1]  # after the progress bar
+        assert last.startswith("advsim attack: error: no space left on the device"), errors
+        assert str(out) in last
+        assert wait_for(lambda: not any(_alive(pid) for pid in graph), timeout=5.0), [p for p in graph if _alive(p)]
+        assert zombie_shm_segments() == 0
+        assert _journaled(out)[: len(journaled)] == journaled  # every query finished before is kept
+        assert not list(out.rglob(".*.tmp")), "a half-written output was left"
+        filler.unlink()  # space freed: the same command resumes and measures what an undisturbed run did
+        final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
+        assert final.returncode == 0, final.stderr
+        assert _journaled(out) == list(range(QUERIES + 3))
+        summary = json.loads((out / "summary.json").read_text())
+    assert _measured(summary) == _measured(reference)
 
 
 @pytest.mark.slow

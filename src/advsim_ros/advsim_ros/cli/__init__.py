@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import signal
 import sys
 from collections.abc import Sequence
@@ -50,13 +51,25 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise Terminated
 
 
+def _os_error_text(error: OSError, args: argparse.Namespace) -> str:
+    """One line for a failed read or write; a full disk names where it was writing and what is kept."""
+    if error.errno != errno.ENOSPC:
+        return str(error)
+    where = error.filename or getattr(args, "out", None) or getattr(args, "output", None)
+    place = f" writing {where}" if where else ""
+    return f"no space left on the device{place}; free some and run the same command again (what finished is kept)"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         result: int = args.run(args)
-    except (CommandError, ValueError, OSError, AttackError, LaunchError) as error:
+    except OSError as error:
+        print(f"advsim {args.command}: error: {_os_error_text(error, args)}", file=sys.stderr)
+        return 1
+    except (CommandError, ValueError, AttackError, LaunchError) as error:
         print(f"advsim {args.command}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
