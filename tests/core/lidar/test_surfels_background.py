@@ -135,3 +135,28 @@ def test_digests_change_with_content_shape_and_type() -> None:
     assert base != digest(np.arange(4, dtype=np.int32))
     assert base != digest(np.arange(4, dtype=np.int64).reshape(2, 2))
     assert base != digest(np.array([0, 1, 2, 4]))
+
+
+def test_surfels_built_in_blocks_equal_one_pass_over_all(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The block-wise neighbourhood pass (it bounds a whole log's memory) changes no bit of the surfels."""
+    from advsim_ros.core.lidar import surfels as surfels_module
+
+    rng = np.random.default_rng(4)
+    samples = PointSamples.concatenate([_plane(rng, 20000, 6.0, hole=1.0), _plane(rng, 3000, 1.0)])
+    monkeypatch.setattr(surfels_module, "_BLOCK", 1 << 30)
+    whole = surfels_from_samples(samples, 0.1, 1.2, 0.3)
+    monkeypatch.setattr(surfels_module, "_BLOCK", 777)  # blocks whose neighbours lie in other blocks
+    blocked = surfels_from_samples(samples, 0.1, 1.2, 0.3)
+    assert whole.count > 10 * 777
+    for name in ("centers", "normals", "half_sizes", "intensity"):
+        np.testing.assert_array_equal(getattr(blocked, name), getattr(whole, name))
+
+
+def test_gathering_point_samples_equals_concatenating_them_and_empties_the_list() -> None:
+    rng = np.random.default_rng(5)
+    parts = [_plane(rng, count, 2.0) for count in (10, 0, 250, 3)]
+    expected = PointSamples.concatenate(parts)
+    gathered = PointSamples.gather(parts)
+    assert parts == []
+    for name in ("xyz", "intensity", "normal_sum", "view_sum", "weight"):
+        np.testing.assert_array_equal(getattr(gathered, name), getattr(expected, name))

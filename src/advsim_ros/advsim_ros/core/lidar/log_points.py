@@ -6,6 +6,7 @@ each actor's asset from its own points (core.lidar.background, core.lidar.assets
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,6 +18,7 @@ from advsim_ros.core.lidar.boxes import BoolArray, to_box_frame, track_pose_at
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.sensor import BeamRows, azimuth_columns, point_normals, rotate, spherical, xyz_of
 from advsim_ros.core.lidar.surfels import PointSamples, voxel_merge
+from advsim_ros.core.memory import release_freed_memory
 from advsim_ros.core.types import ActorTrack, FloatArray, Scenario
 
 _THIN_CHUNK_SWEEPS = 16  # background points are thinned every this many sweeps to bound memory
@@ -35,6 +37,10 @@ class LogPoints:
     actors: dict[str, PointSamples]  # track id -> its points in its box frame
     actor_intensity: dict[str, FloatArray]  # track id -> intensity of its raw points
     actor_frames: dict[str, list[int]]  # track id -> sweep indices where it had points
+
+    def actors_only(self) -> LogPoints:
+        """The same without the static scene's points and depth images (once the background is built)."""
+        return dataclasses.replace(self, background=PointSamples.concatenate([]), depths=[])
 
 
 def collect_log_points(scenario: Scenario, beam_rows: BeamRows, config: ResimConfig) -> LogPoints:
@@ -94,8 +100,11 @@ def collect_log_points(scenario: Scenario, beam_rows: BeamRows, config: ResimCon
         if len(pending) >= _THIN_CHUNK_SWEEPS:
             merged.append(voxel_merge(PointSamples.concatenate(pending), config.background_voxel))
             pending = []
+            release_freed_memory()  # the chunk's sweep-sized temporaries would stay resident as holes
+    merged.extend(pending)
+    del pending
     return LogPoints(
-        background=PointSamples.concatenate(merged + pending),
+        background=PointSamples.gather(merged),
         depths=depths,
         actors={key: PointSamples.concatenate(align_frames(parts)) for key, parts in actor_parts.items()},
         actor_intensity={

@@ -48,6 +48,7 @@ from advsim_ros.core.lidar.raycast import NO_TRIANGLE, RayHits, SurfaceCaster
 from advsim_ros.core.lidar.rewrite import ActorResimStats, ResimStats, rewrite_sweep
 from advsim_ros.core.lidar.sensor import BeamRows, rotate, spherical, xyz_of
 from advsim_ros.core.lidar.sensor_estimation import estimate_sensor_model
+from advsim_ros.core.memory import release_freed_memory
 from advsim_ros.core.types import ActorTrack, FloatArray, Scenario, Sweep
 
 _MAX_PASSES = 8  # a ray is walked through at most this many surfels it passes (glass)
@@ -100,8 +101,12 @@ class ResimModel:
         """Sensor model, log points, background and assets from the log, then the assets' optics calibrated."""
         beam_rows = estimate_sensor_model(scenario.sweeps)
         log_points = collect_log_points(scenario, beam_rows, config)
-        background = build_background(log_points.background, log_points.depths, beam_rows, config)
+        release_freed_memory()  # each stage's temporaries leave holes between what it keeps (~0.5 GB on KITTI)
         assets = build_assets(scenario, log_points, config)
+        background = build_background(log_points.background, log_points.depths, beam_rows, config)
+        # The static points (~0.5 GB on a KITTI log) are done with before the ray casters are built.
+        log_points = log_points.actors_only()
+        release_freed_memory()
         model = cls(beam_rows, background, assets, config)
         model.assets = estimate_optics(model, scenario, log_points)
         return model

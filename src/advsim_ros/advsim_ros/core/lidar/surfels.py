@@ -20,7 +20,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from advsim_ros.core.lidar.raycast import AnyFloatArray, Surface, surfels_to_surface
-from advsim_ros.core.types import FloatArray, IntArray, ScenarioError
+from advsim_ros.core.types import FloatArray, ScenarioError
 
 SPACING_NEIGHBOURS = 4  # neighbours whose mean distance is the local spacing of surfels
 SMOOTHING_NEIGHBOURS = 10  # neighbours whose agreeing normals are averaged into a surfel's normal
@@ -30,7 +30,9 @@ PLANARITY = 0.05  # a neighbourhood is flat when its least spread is at most thi
 SMOOTHING_RADIUS_VOXELS = 3.0  # ... and neighbours farther than this many voxels are left out
 _CONSISTENT_NORMALS = 0.5  # |sum of unit normals| / count below this: the voxel's normals disagree
 BoolArray = npt.NDArray[np.bool_]
+Neighbours = npt.NDArray[np.int32]  # (S, K) indices of each surfel's nearest surfels, itself first
 _KEY_BITS = 21  # bits per axis of a packed voxel key (about +-1e6 voxels per axis)
+_BLOCK = 65536  # surfels whose neighbourhoods are processed at once (bounds the build's memory)
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,6 +66,21 @@ class PointSamples:
             weight=np.concatenate([part.weight for part in parts]),
         )
 
+    @staticmethod
+    def gather(parts: list[PointSamples]) -> PointSamples:
+        """``concatenate`` that empties ``parts`` as it copies them: the peak is the result plus one part."""
+        total = sum(part.count for part in parts)
+        gathered = PointSamples(np.empty((total, 3)), np.empty(total), np.empty((total, 3)), np.empty((total, 3)),
+                                np.empty(total))  # fmt: skip
+        start = 0
+        while parts:
+            part = parts.pop(0)
+            rows = slice(start, start + part.count)
+            gathered.xyz[rows], gathered.intensity[rows], gathered.weight[rows] = part.xyz, part.intensity, part.weight
+            gathered.normal_sum[rows], gathered.view_sum[rows] = part.normal_sum, part.view_sum
+            start += part.count
+        return gathered
+
     @property
     def count(self) -> int:
         return int(self.xyz.shape[0])
@@ -89,10 +106,13 @@ def voxel_merge(samples: PointSamples, voxel_size: float) -> PointSamples:
     """One sample per occupied voxel of size `voxel_size` [m]: weighted means and summed normals."""
     if samples.count == 0:
         return samples
-    cells = np.floor(samples.xyz / voxel_size).astype(np.int64) + (1 << (_KEY_BITS - 1))
-    if cells.min() < 0 or cells.max() >= (1 << _KEY_BITS):
-        raise ScenarioError(f"voxel_merge: points span more than {(1 << _KEY_BITS) * voxel_size:.0f} m")
-    keys = (cells[:, 0] << (2 * _KEY_BITS)) | (cells[:, 1] << _KEY_BITS) | cells[:, 2]
+    keys = np.zeros(samples.count, dtype=np.int64)
+    for axis in range(3):  # one axis at a time: (N, 3) temporaries of a whole log's points are GBs
+        cells = np.floor(samples.xyz[:, axis] / voxel_size).astype(np.int64) + (1 << (_KEY_BITS - 1))
+        if cells.min() < 0 or cells.max() >= (1 << _KEY_BITS):
+            raise ScenarioError(f"voxel_merge: points span more than {(1 << _KEY_BITS) * voxel_size:.0f} m")
+        keys |= cells << ((2 - axis) * _KEY_BITS)
+    del cells
     _, inverse = np.unique(keys, return_inverse=True)
     weight: FloatArray = np.bincount(inverse, weights=samples.weight).astype(np.float64)
 
@@ -168,7 +188,7 @@ class SurfelCloud:
         return SurfelCloud(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
 
 
-def _plane_normals(centers: FloatArray, neighbours: IntArray) -> tuple[FloatArray, BoolArray]:
+def _plane_normals(centers: FloatArray, neighbours: Neighbours) -> tuple[FloatArray, BoolArray]:
     """Normals of planes fitted to each surfel's neighbourhood, and whether the neighbourhood is flat.
 
     Where it is flat this beats the range-image normal, which is noisy or missing for far,
@@ -182,22 +202,20 @@ def _plane_normals(centers: FloatArray, neighbours: IntArray) -> tuple[FloatArra
     return normals, planar
 
 
-def _smoothed_normals(
-    normals: FloatArray, neighbours: IntArray, distances: FloatArray, voxel_size: float
-) -> FloatArray:
-    """Each normal averaged with the neighbours' normals that agree with it (within SMOOTHING_ANGLE).
+def _smoothed_normals(normals: FloatArray, block: slice, neighbours: Neighbours, close: BoolArray) -> FloatArray:
+    """The normals of the surfels in ``block``, each averaged with its close neighbours' normals that agree with
+    it (within SMOOTHING_ANGLE); ``neighbours`` and ``close`` are the block's rows.
 
     Range-image normals are noisy where rays graze a surface (far road); averaging only
     agreeing neighbours smooths planes without rounding off edges such as curbs.
     """
-    own = normals[:, None, :]
+    own = normals[block][:, None, :]
     others = normals[neighbours]  # (S, K + 1, 3), the surfel itself first
     alignment = np.einsum("skc,skc->sk", others, np.broadcast_to(own, others.shape))
-    close = distances <= SMOOTHING_RADIUS_VOXELS * voxel_size
     weight = np.where((np.abs(alignment) >= np.cos(SMOOTHING_ANGLE)) & close, np.sign(alignment), 0.0)
     summed = np.einsum("sk,skc->sc", weight, others)
     length = np.linalg.norm(summed, axis=1, keepdims=True)
-    result: FloatArray = np.where(length > 1e-9, summed / np.maximum(length, 1e-12), normals)
+    result: FloatArray = np.where(length > 1e-9, summed / np.maximum(length, 1e-12), normals[block])
     return result
 
 
@@ -222,11 +240,23 @@ def surfels_from_samples(
         merged.view_sum / view_length[:, None],
     )
     if count > SMOOTHING_NEIGHBOURS:
-        distances, neighbours = cKDTree(merged.xyz).query(merged.xyz, k=SMOOTHING_NEIGHBOURS + 1, workers=-1)
-        spacing = distances[:, 1 : SPACING_NEIGHBOURS + 1].mean(axis=1)
-        fitted, planar = _plane_normals(merged.xyz, neighbours)
-        normals = np.where(planar[:, None], fitted, normals)
-        normals = _smoothed_normals(normals, neighbours, distances, voxel_size)
+        # In blocks of surfels: a whole log's background has millions, and its per-neighbour temporaries
+        # would take GBs at once. Each block's figures are exactly those of one pass over all.
+        tree = cKDTree(merged.xyz)
+        blocks = [slice(start, start + _BLOCK) for start in range(0, count, _BLOCK)]
+        neighbours = np.empty((count, SMOOTHING_NEIGHBOURS + 1), dtype=np.int32)
+        close = np.empty((count, SMOOTHING_NEIGHBOURS + 1), dtype=bool)
+        spacing = np.empty(count)
+        for block in blocks:
+            distances, neighbours[block] = tree.query(merged.xyz[block], k=SMOOTHING_NEIGHBOURS + 1, workers=-1)
+            spacing[block] = distances[:, 1 : SPACING_NEIGHBOURS + 1].mean(axis=1)
+            close[block] = distances <= SMOOTHING_RADIUS_VOXELS * voxel_size
+            fitted, planar = _plane_normals(merged.xyz, neighbours[block])
+            normals[block] = np.where(planar[:, None], fitted, normals[block])
+        smoothed = np.empty_like(normals)
+        for block in blocks:  # after every plane fit: a block's neighbours may lie in any block
+            smoothed[block] = _smoothed_normals(normals, block, neighbours[block], close[block])
+        normals = smoothed
     else:
         spacing = np.full(count, voxel_size)
     # A surfel whose neighbours are farther apart than a full surfel would span is a stray
