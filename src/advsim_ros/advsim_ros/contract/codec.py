@@ -132,6 +132,33 @@ def decode(raw: bytes | memoryview, type_name: str) -> Any:
         raise ContractError(f"bytes do not decode as {type_name}: {error}") from error
 
 
+# ----------------------------------------------------------------------------- CDR written directly
+
+# The stacks publish a plan and hundreds of tracks every sweep: their builders write CDR bytes
+# themselves (the same bytes as encode() of the message objects, which cost tens of ms per sweep).
+CDR_LE_HEADER = b"\x00\x01\x00\x00"  # encapsulation: plain CDR, little-endian (what encode() writes here)
+
+
+def cdr_align(payload: bytearray, size: int) -> None:
+    """Zero padding up to a multiple of size (offsets count from the payload, after the encapsulation)."""
+    payload.extend(bytes(-len(payload) % size))
+
+
+def cdr_string(payload: bytearray, text: str) -> None:
+    encoded = text.encode()
+    cdr_align(payload, 4)
+    payload.extend(struct.pack("<I", len(encoded) + 1))
+    payload.extend(encoded)
+    payload.append(0)
+
+
+def cdr_header(payload: bytearray, value_ns: int, frame_id: str) -> None:
+    """A std_msgs/Header: its stamp, then its frame."""
+    cdr_align(payload, 4)
+    payload.extend(struct.pack("<iI", *divmod(int(value_ns), NS_PER_S)))
+    cdr_string(payload, frame_id)
+
+
 # ----------------------------------------------------------------------------- stamps and headers
 
 

@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, header_msg, message, stamp_ns
+from advsim_ros.contract.codec import (
+    CDR_LE_HEADER,
+    ContractError,
+    cdr_align,
+    cdr_header,
+    header_msg,
+    message,
+    stamp_ns,
+)
 from advsim_ros.core.types import Plan
 
 PLAN_STEP_NS = 100_000_000  # poses stamped 0 (stacks that stamp only the header) are taken this far apart [ns]
@@ -28,6 +37,19 @@ def path_msg(plan: Plan, header_stamp_ns: int, frame_id: str, z: float = 0.0) ->
             )
         )
     return message(names.PATH, header=header_msg(header_stamp_ns, frame_id), poses=poses)
+
+
+def path_cdr(plan: Plan, header_stamp_ns: int, frame_id: str, z: float = 0.0) -> bytes:
+    """CDR of path_msg(plan, header_stamp_ns, frame_id, z), byte for byte, written without message objects."""
+    payload = bytearray()
+    cdr_header(payload, header_stamp_ns, frame_id)
+    cdr_align(payload, 4)
+    payload.extend(struct.pack("<I", plan.stamps_ns.shape[0]))
+    for stamp, (x, y), yaw in zip(plan.stamps_ns.tolist(), plan.xy.tolist(), plan.yaws.tolist(), strict=True):
+        cdr_header(payload, stamp, frame_id)
+        cdr_align(payload, 8)
+        payload.extend(struct.pack("<7d", x, y, float(z), 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)))
+    return CDR_LE_HEADER + bytes(payload)
 
 
 def plan_from_path(path: Any, time_offset_ns: int = 0) -> Plan:

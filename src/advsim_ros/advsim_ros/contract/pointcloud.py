@@ -9,6 +9,7 @@ survive, so intensity, ring, time or any other field round-trips unchanged.
 
 from __future__ import annotations
 
+import array
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -132,9 +133,9 @@ def pointfields_to_dtype(fields: Sequence[PointFieldLike], point_step: int, is_b
 def _data_bytes(data: object) -> memoryview:
     if isinstance(data, np.ndarray):
         return memoryview(np.ascontiguousarray(data, dtype=np.uint8).tobytes())
-    if isinstance(data, bytes | bytearray | memoryview):
+    if isinstance(data, bytes | bytearray | memoryview | array.array):  # array.array('B') from rclpy: no copy
         return memoryview(data).cast("B")
-    return memoryview(bytes(data))  # type: ignore[call-overload]  # array.array('B') from rclpy
+    return memoryview(bytes(data))  # type: ignore[call-overload]  # any other sequence of bytes
 
 
 def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
@@ -164,8 +165,9 @@ def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
     raw = np.frombuffer(data, dtype=np.uint8, count=needed)
     if row_step != width * point_step:  # rows padded beyond width * point_step: gather the rows
         raw = np.lib.stride_tricks.as_strided(raw, shape=(height, width * point_step), strides=(row_step, 1))
-    # Copy through bytes so that padding between fields survives (a structured .copy() leaves it undefined).
-    return np.frombuffer(bytearray(raw.tobytes()), dtype=dtype)
+    # One copy of the bytes, viewed as points: padding between fields survives (a structured .copy() leaves
+    # it undefined), and the points own their memory, writable, apart from the message's buffer.
+    return raw.copy().reshape(-1).view(dtype)
 
 
 def points_to_cloud_fields(points: np.ndarray) -> tuple[tuple[PointFieldSpec, ...], int]:

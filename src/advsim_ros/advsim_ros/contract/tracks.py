@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -172,6 +173,59 @@ def track_array_msg(
         query_id=int(query_id),
         tracks=[track_msg(record) for record in records],
     )
+
+
+# CDR (little-endian) of one ActorState that starts 8-aligned: the stamp, then its seven float64 unpadded.
+_STATE_CDR = np.dtype([("sec", "<i4"), ("nanosec", "<u4"), ("values", "<f8", (7,))])
+
+
+def track_array_cdr(
+    actor_ids: Sequence[str],
+    actor_classes: Sequence[ActorClass],
+    sizes: FloatArray,
+    confidences: FloatArray,
+    stamps_ns: IntArray,
+    states: FloatArray,
+    stamp: int,
+    frame_id: str,
+    *,
+    query_id: int = 0,
+    run_id: int = 0,
+) -> bytes:
+    """CDR of an ActorTrackArray whose N tracks share T stamps, straight from arrays.
+
+    sizes (N, 3), confidences (N,), stamps_ns (T,), states (N, T, 7): x, y, z, yaw, velocity,
+    curvature, acceleration. Byte for byte what ``codec.encode(track_array_msg(...))`` gives for
+    the same tracks; a stack's detections and predictions (hundreds of tracks x 50 states every
+    sweep) cost a few milliseconds this way instead of tens through message objects.
+    """
+    count, steps = len(actor_ids), int(np.asarray(stamps_ns).shape[0])
+    values = np.asarray(states, dtype=np.float64).reshape(count, steps, 7)
+    block = np.zeros((count, steps), dtype=_STATE_CDR)
+    seconds, nanoseconds = np.divmod(np.asarray(stamps_ns, dtype=np.int64), NS_PER_S)
+    block["sec"], block["nanosec"], block["values"] = seconds, nanoseconds, values
+    raw = block.tobytes()
+    track_bytes = steps * _STATE_CDR.itemsize
+    payload = bytearray()
+    codec.cdr_header(payload, stamp, frame_id)
+    codec.cdr_align(payload, 8)
+    payload.extend(struct.pack("<QQI", int(run_id), int(query_id), count))
+    dimensions = np.asarray(sizes, dtype=np.float64).tolist()
+    scores = np.asarray(confidences, dtype=np.float64).tolist()
+    for index in range(count):
+        codec.cdr_string(payload, actor_ids[index])
+        codec.cdr_string(payload, actor_classes[index].value)
+        codec.cdr_align(payload, 8)
+        payload.extend(struct.pack("<dddfI", *dimensions[index], scores[index], steps))
+        chunk = raw[index * track_bytes : (index + 1) * track_bytes]
+        if steps and len(payload) % 8:
+            # The first stamp sits 4 bytes off an 8-byte boundary: its x is padded, the rest are aligned.
+            payload.extend(chunk[:8])
+            payload.extend(bytes(4))
+            payload.extend(chunk[8:])
+        else:
+            payload.extend(chunk)
+    return codec.CDR_LE_HEADER + bytes(payload)
 
 
 def track_from_msg(track: Any) -> TrackRecord:

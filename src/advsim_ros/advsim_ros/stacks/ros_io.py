@@ -16,10 +16,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from advsim_ros.contract import codec
-from advsim_ros.contract.plan import path_msg
+from advsim_ros.contract.plan import path_cdr
 from advsim_ros.contract.spatial import odometry_pose
-from advsim_ros.contract.tracks import TrackRecord, track_array_msg
-from advsim_ros.core.types import FloatArray
+from advsim_ros.contract.tracks import track_array_cdr
+from advsim_ros.core.types import ActorClass, FloatArray, IntArray
 from advsim_ros.stacks.interface import EgoMotion, ObjectTrajectories, StackOutput, ego_motion_from_poses
 
 
@@ -72,31 +72,25 @@ class PoseBuffer:
         return self._entries[nearest][1], motion
 
 
-def track_records(objects: ObjectTrajectories) -> list[TrackRecord]:
-    """A stack's objects as ActorTrack records (curvature and acceleration unknown: 0)."""
-    steps = objects.stamps_ns.shape[0]
-    return [
-        TrackRecord(
-            actor_id=objects.actor_ids[index],
-            actor_class=objects.actor_classes[index],
-            size=objects.sizes[index],
-            confidence=float(np.clip(objects.confidences[index], 0.0, 1.0)),
-            stamps_ns=objects.stamps_ns,
-            xyz=np.column_stack([objects.xy[index], np.full(steps, objects.z[index])]),
-            yaw=objects.yaws[index],
-            velocity=objects.velocities[index],
-            curvature=np.zeros(steps),
-            acceleration=np.zeros(steps),
-        )
-        for index in range(objects.count)
-    ]
+def track_arrays(
+    objects: ObjectTrajectories,
+) -> tuple[tuple[str, ...], tuple[ActorClass, ...], FloatArray, FloatArray, IntArray, FloatArray]:
+    """A stack's objects as track_array_cdr's arrays: ActorTracks with curvature and acceleration unknown (0)."""
+    count, steps = objects.count, objects.stamps_ns.shape[0]
+    states = np.zeros((count, steps, 7))
+    states[..., :2] = objects.xy
+    states[..., 2] = objects.z[:, None]
+    states[..., 3] = objects.yaws
+    states[..., 4] = objects.velocities
+    confidences = np.clip(objects.confidences, 0.0, 1.0)
+    return objects.actor_ids, objects.actor_classes, objects.sizes, confidences, objects.stamps_ns, states
 
 
 def output_messages(output: StackOutput, stamp: int, frame_id: str) -> tuple[bytes, bytes | None, bytes | None]:
     """CDR of the plan, and of the detections and predictions when the stack made them."""
 
     def tracks(objects: ObjectTrajectories | None) -> bytes | None:
-        return None if objects is None else codec.encode(track_array_msg(track_records(objects), stamp, frame_id))
+        return None if objects is None else track_array_cdr(*track_arrays(objects), stamp, frame_id)
 
-    plan = codec.encode(path_msg(output.plan, stamp, frame_id, output.plan_z))
+    plan = path_cdr(output.plan, stamp, frame_id, output.plan_z)
     return plan, tracks(output.detections), tracks(output.predictions)

@@ -69,6 +69,14 @@ class Detections:
         )
 
 
+def _to_edge(values: FloatArray, low: FloatArray, high: FloatArray, sizes: IntArray) -> FloatArray:
+    """(M, A) distance of each value to the nearer end of its cluster's [low, high] (clusters of `sizes` rows)."""
+    result: FloatArray = np.repeat(high, sizes, axis=0)
+    result -= values
+    np.minimum(result, values - np.repeat(low, sizes, axis=0), out=result)
+    return result
+
+
 def _fit_headings(
     cell_xy: FloatArray, cluster: IntArray, count: int, config: DetectorConfig
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -79,7 +87,9 @@ def _fit_headings(
     starts = np.flatnonzero(np.r_[True, cluster[1:] != cluster[:-1]])
     sizes = np.diff(np.r_[starts, cluster.shape[0]])
     mean = np.add.reduceat(cell_xy, starts, axis=0) / sizes[:, None]
-    local = cell_xy - mean[cluster]  # centred per cluster, for precision
+    # Clusters are contiguous runs of rows: per-cluster values reach their rows by np.repeat (cheaper than
+    # gathering), and the (M, A) intermediates are reused in place.
+    local = cell_xy - np.repeat(mean, sizes, axis=0)  # centred per cluster, for precision
     angles = np.arange(config.angle_steps) * (0.5 * np.pi / config.angle_steps)
     cos, sin = np.cos(angles), np.sin(angles)
     along = local[:, :1] * cos + local[:, 1:] * sin  # (M, A) coordinate on the first axis
@@ -88,9 +98,10 @@ def _fit_headings(
     high_along = np.maximum.reduceat(along, starts, axis=0)
     low_across = np.minimum.reduceat(across, starts, axis=0)
     high_across = np.maximum.reduceat(across, starts, axis=0)
-    to_edge_along = np.minimum(high_along[cluster] - along, along - low_along[cluster])
-    to_edge_across = np.minimum(high_across[cluster] - across, across - low_across[cluster])
-    closeness = 1.0 / np.maximum(np.minimum(to_edge_along, to_edge_across), config.closeness_floor)
+    closeness = _to_edge(along, low_along, high_along, sizes)
+    np.minimum(closeness, _to_edge(across, low_across, high_across, sizes), out=closeness)
+    np.maximum(closeness, config.closeness_floor, out=closeness)
+    np.divide(1.0, closeness, out=closeness)
     score = np.add.reduceat(closeness, starts, axis=0)  # (K, A)
     best = np.argmax(score, axis=1)
     rows = np.arange(count)
@@ -125,30 +136,41 @@ def _in(values: FloatArray, bounds: tuple[float, ...]) -> BoolArray:
 
 def detect(split: GroundSplit, ground: GroundConfig, config: DetectorConfig, sensor_xy: FloatArray) -> Detections:
     """Boxes of the clusters of object returns (ego frame); sensor_xy (2,) is the LiDAR's position [m]."""
-    points = split.xyz[split.is_object]
-    if points.shape[0] == 0:
+    # take() of the object returns: boolean indexing of the (N, 3) sweep is several times slower.
+    objects = np.flatnonzero(split.is_object)
+    if objects.shape[0] == 0:
         return Detections.empty()
-    heights = split.height[split.is_object]
+    points = split.xyz.take(objects, axis=0)
+    heights = split.height.take(objects)
     cell = config.cell_size
     x_min, y_min = ground.range_x[0], ground.range_y[0]
     columns = int(np.ceil((ground.range_x[1] - x_min) / cell))
     rows = int(np.ceil((ground.range_y[1] - y_min) / cell))
     column = np.minimum(((points[:, 0] - x_min) / cell).astype(np.int64), columns - 1)
     row = np.minimum(((points[:, 1] - y_min) / cell).astype(np.int64), rows - 1)
-    occupied = np.zeros((rows, columns), dtype=bool)
-    occupied[row, column] = True
-    labels, num_labels = ndimage.label(occupied, structure=_EIGHT_CONNECTED)
-    point_label = labels[row, column]
+    point_cell = row * columns + column
+    occupied = np.zeros(rows * columns, dtype=bool)
+    occupied[point_cell] = True
+    labels, num_labels = ndimage.label(occupied.reshape(rows, columns), structure=_EIGHT_CONNECTED)
+    flat_labels = labels.ravel()
+    point_label = flat_labels.take(point_cell)
     counts = np.bincount(point_label, minlength=num_labels + 1)
     top = np.zeros(num_labels + 1, dtype=np.float32)
     np.maximum.at(top, point_label, heights)
     ground_z = np.bincount(point_label, weights=points[:, 2] - heights, minlength=num_labels + 1) / np.maximum(
         counts, 1
     )
+    # The occupied cells in row-major order (the few thousand that are labelled, not the whole grid) and
+    # each label's bounding box from them, as ndimage.find_objects would give it.
+    cells = np.flatnonzero(occupied)
+    cell_label = flat_labels.take(cells)
+    cell_rows, cell_columns = np.divmod(cells, columns)
+    low = np.full((num_labels + 1, 2), max(rows, columns), dtype=np.int64)
+    high = np.full((num_labels + 1, 2), -1, dtype=np.int64)
+    np.minimum.at(low, cell_label, np.column_stack([cell_rows, cell_columns]))
+    np.maximum.at(high, cell_label, np.column_stack([cell_rows, cell_columns]))
     spans = np.zeros((num_labels + 1, 2))
-    for index, found in enumerate(ndimage.find_objects(labels), start=1):
-        if found is not None:
-            spans[index] = ((found[0].stop - found[0].start) * cell, (found[1].stop - found[1].start) * cell)
+    spans[1:] = (high[1:] - low[1:] + 1) * cell
     candidate = (counts >= config.min_points) & (top >= config.min_top_height)
     candidate &= np.hypot(spans[:, 0], spans[:, 1]) <= config.max_footprint
     candidate[0] = False
@@ -158,8 +180,7 @@ def detect(split: GroundSplit, ground: GroundConfig, config: DetectorConfig, sen
         return Detections.empty()
     remap = np.full(num_labels + 1, -1, dtype=np.int64)
     remap[candidate_ids] = np.arange(count)
-    cell_rows, cell_columns = np.nonzero(labels)
-    cell_cluster = remap[labels[cell_rows, cell_columns]]
+    cell_cluster = remap[cell_label]
     keep = cell_cluster >= 0
     order = np.argsort(cell_cluster[keep], kind="stable")
     cell_cluster = cell_cluster[keep][order]

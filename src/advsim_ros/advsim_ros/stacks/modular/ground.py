@@ -44,13 +44,15 @@ class GroundSplit:
 def crop_points(xyz: npt.NDArray[np.floating], config: GroundConfig) -> Float32Array:
     """Points (ego frame) inside the configured x, y, z range and off the ego vehicle, as float32."""
     points = np.asarray(xyz, dtype=np.float32)
-    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    # Contiguous copies of the columns: ten comparisons on strided views cost more than the copies.
+    x, y, z = (np.ascontiguousarray(points[:, axis]) for axis in range(3))
     keep = (x >= config.range_x[0]) & (x < config.range_x[1])
     keep &= (y >= config.range_y[0]) & (y < config.range_y[1])
     keep &= (z >= config.range_z[0]) & (z < config.range_z[1])
     x_low, x_high, y_low, y_high = config.self_filter
     keep &= ~((x > x_low) & (x < x_high) & (y > y_low) & (y < y_high))  # returns off the ego vehicle itself
-    result: Float32Array = points[keep]
+    # take() of the kept rows: boolean indexing of an (N, 3) array is several times slower.
+    result: Float32Array = points.take(np.flatnonzero(keep), axis=0)
     return result
 
 

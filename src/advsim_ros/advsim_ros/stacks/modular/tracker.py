@@ -107,7 +107,11 @@ class MultiObjectTracker:
     def _associate(self, world: Detections) -> tuple[IntArray, IntArray]:
         if self._ids.shape[0] == 0 or world.count == 0:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        distance = np.linalg.norm(self._x[:, None, :2] - world.boxes[None, :, :2], axis=-1)
+        # sqrt(dx^2 + dy^2) written out: the same numbers as np.linalg.norm(axis=-1), whose reduction over a
+        # length-2 axis is several times slower on a tracks x detections matrix.
+        dx = self._x[:, None, 0] - world.boxes[None, :, 0]
+        dy = self._x[:, None, 1] - world.boxes[None, :, 1]
+        distance = np.sqrt(dx * dx + dy * dy)
         gate = np.where(self._classes == _VEHICLE, self._config.gate, self._config.small_gate)
         allowed = (distance <= gate[:, None]) & (self._classes[:, None] == world.classes[None, :])
         cost = np.where(allowed, distance, _NO_MATCH)
