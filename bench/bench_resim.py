@@ -1,6 +1,6 @@
 """LiDAR re-simulation speed and fidelity on KITTI tracking 0000 and on synthetic logs.
 
-Run as ``python bench/bench_resim.py``; prints one JSON object of figures:
+Run as ``python bench/bench_resim.py [--build-only]``; prints one JSON object of figures:
 
 - model build per log (sensor model, background, assets; from scratch, no cache) [s, wall and
   CPU], in a process of its own, and that process's peak memory [MB];
@@ -19,6 +19,7 @@ Without ../shared/data the KITTI figures are left out (and the JSON says so).
 
 from __future__ import annotations
 
+import argparse
 import json
 import multiprocessing
 import os
@@ -199,10 +200,21 @@ def _synthetic_agreement(log: SyntheticLog, model: ResimModel) -> dict[str, Any]
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--build-only", action="store_true", help="only the KITTI model build (time, peak memory)")
+    args = parser.parse_args()
     figures: dict[str, Any] = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared with other work while measured)",
         "move": {"dx_m": MOVE[0], "dy_m": MOVE[1], "dyaw_rad": MOVE[2]},
     }
+    root = SHARED_DATA / "kitti_tracking_0000"
+    if args.build_only:
+        if not root.is_dir():
+            raise SystemExit(f"bench_resim: KITTI data not found at {root.resolve()}")
+        with tempfile.TemporaryDirectory() as cache, multiprocessing.get_context("spawn").Pool(1) as pool:
+            figures["kitti"] = pool.apply(_build_in_fresh_process, (root.resolve(), Path(cache)))
+        print(json.dumps(figures, indent=2))
+        return
     started = time.perf_counter()
     log = generate_synthetic_log(np.random.default_rng(7), SyntheticConfig(), "synthetic_7")
     figures["synthetic_generation_s"] = round(time.perf_counter() - started, 2)
@@ -211,7 +223,6 @@ def main() -> None:
         synthetic_model = ResimModel.build(log.scenario, Path(cache))
         figures["synthetic_build_s"] = round(time.perf_counter() - started, 1)
     figures["synthetic_ground_truth"] = _synthetic_agreement(log, synthetic_model)
-    root = SHARED_DATA / "kitti_tracking_0000"
     if not root.is_dir():
         figures["kitti"] = f"skipped: {root.resolve()} not found"
         print(json.dumps(figures, indent=2))
