@@ -1,0 +1,33 @@
+"""Handing freed C heap back to the operating system (glibc's malloc_trim).
+
+A long-lived node that drops a large part of what it loaded (lidar_resim: the sweeps it never
+re-simulates, the triangles it gave to Embree) frees it to malloc, not always to the system:
+megabyte blocks freed after glibc raised its mmap threshold sit in the heap's middle and stay
+resident. malloc_trim(0) returns their pages; nothing else changes (same values, same allocations).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import functools
+from collections.abc import Callable
+
+
+@functools.cache
+def _malloc_trim() -> Callable[[int], int] | None:
+    name = ctypes.util.find_library("c")
+    try:
+        trim: Callable[[int], int] = ctypes.CDLL(name).malloc_trim  # glibc only
+    except (OSError, AttributeError, TypeError):
+        return None
+    return trim
+
+
+def release_free_memory() -> bool:
+    """Return the free pages of the C heap to the system; False where the C library cannot (not glibc)."""
+    trim = _malloc_trim()
+    if trim is None:
+        return False
+    trim(0)
+    return True
