@@ -96,13 +96,30 @@ def test_the_same_attack_run_again_gives_the_same_score_and_the_same_stack_input
 ) -> None:
     _, first = reference_attack
     second = _reference_attack(kitti_window_bag, tmp_path / "second", fast_parameters)
-
-    def measured(summary: dict[str, Any]) -> list[tuple[Any, ...]]:
-        keys = ("status", "adversarial_loss", "collision_5s", "input_digest", "plan_digest")
-        return [(q["query_id"], *(q["score"][k] for k in keys)) for q in summary["queries"]]
-
-    assert measured(second) == measured(first)
+    assert _measured(second) == _measured(first)
     assert len({q["score"]["input_digest"] for q in first["queries"]}) > 1  # the perturbations changed the LiDAR
+
+
+def _measured(summary: dict[str, Any]) -> list[tuple[Any, ...]]:
+    keys = ("status", "adversarial_loss", "collision_5s", "input_digest", "plan_digest")
+    return [(q["query_id"], *(q["score"][k] for k in keys)) for q in summary["queries"]]
+
+
+@pytest.mark.slow
+def test_lidar_resim_keeping_only_the_history_sweeps_gives_the_stack_the_same_inputs_and_the_same_scores(
+    reference_attack: tuple[Path, dict[str, Any]],
+    kitti_window_bag: Path,
+    tmp_path: Path,
+    fast_parameters: dict[str, Any],
+) -> None:
+    # open loop: the attack has lidar_resim keep only the 10 history sweeps of the 60 (memory); keeping them all
+    # must not change a byte the stack receives
+    out, first = reference_attack
+    assert "keeping 10 of 60 sweeps" in (out / "run" / "logs" / "lidar_resim.log").read_text()
+    every = {**fast_parameters, "lidar_resim": {"history_sweeps_only": False}}
+    second = _reference_attack(kitti_window_bag, tmp_path / "every_sweep", every)
+    assert "keeping 60 of 60 sweeps" in (tmp_path / "every_sweep" / "run" / "logs" / "lidar_resim.log").read_text()
+    assert _measured(second) == _measured(first)
 
 
 @pytest.mark.slow

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -102,3 +105,61 @@ def test_malformed_surfaces_are_refused_with_the_reason() -> None:
         Surface(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.zeros(2))
     with pytest.raises(ScenarioError, match="lower < upper"):
         cuboid_surface([0, 0, 0], [1, 0, 1], 0.5)
+
+
+def _random_surfels(count: int, seed: int = 0) -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(seed)
+    normals = rng.normal(size=(count, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return (
+        (rng.normal(size=(count, 3)) * 10.0).astype(np.float32),
+        normals.astype(np.float32),
+        rng.uniform(0.05, 0.3, count).astype(np.float32),
+        rng.uniform(0.0, 1.0, count).astype(np.float32),
+    )
+
+
+def test_surfels_become_the_same_triangles_whatever_the_chunk_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    surfels = _random_surfels(1000)
+    whole = surfels_to_surface(*surfels)
+    monkeypatch.setattr("advsim_ros.core.lidar.raycast.SURFEL_CHUNK", 7)  # chunks that do not divide the count
+    chunked = surfels_to_surface(*surfels)
+    # and as the whole float64 computation of before gave them
+    as_float64 = surfels_to_surface(*(np.asarray(part, dtype=np.float64) for part in surfels))
+    for surface in (chunked, as_float64):
+        assert np.array_equal(surface.vertices, whole.vertices)
+        assert np.array_equal(surface.triangles, whole.triangles)
+        assert np.array_equal(surface.intensity, whole.intensity)
+    assert whole.vertices.dtype == np.float32
+    assert whole.triangles.dtype == np.int32
+
+
+def test_a_caster_without_its_surface_casts_exactly_as_one_with_it() -> None:
+    surface = surfels_to_surface(*_random_surfels(2000, seed=1))
+    kept, lean = SurfaceCaster(surface), SurfaceCaster.lean(lambda: surface)
+    rng = np.random.default_rng(2)
+    directions = rng.normal(size=(4000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    rays = np.concatenate([np.zeros_like(directions), directions], axis=1).astype(np.float32)
+    for a, b in zip(kept.cast_first(rays), lean.cast_first(rays), strict=True):
+        assert np.array_equal(a, b)
+    hits_kept, hits_lean = kept.cast(np.zeros(3), directions), lean.cast(np.zeros(3), directions)
+    assert np.count_nonzero(np.isfinite(hits_kept.ranges)) > 100
+    assert np.array_equal(hits_kept.ranges, hits_lean.ranges)
+    assert np.array_equal(hits_kept.intensity, hits_lean.intensity)
+    assert lean.intensity is surface.intensity
+    with pytest.raises(ScenarioError, match="lean caster"):
+        _ = lean.surface
+
+
+def test_the_ray_caster_loads_open3d_without_its_visualisers() -> None:
+    # Open3D's package __init__ imports plotly, dash and IPython (~45 MB resident): a ray-casting
+    # process (lidar_resim) loads only its compiled module
+    code = (
+        "import sys\n"
+        "from advsim_ros.core.lidar.raycast import SurfaceCaster, cuboid_surface\n"
+        "SurfaceCaster(cuboid_surface([-1, -1, -1], [1, 1, 1], 0.5))\n"
+        "print(sorted(m for m in ('dash', 'plotly', 'IPython', 'open3d') if m in sys.modules))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"

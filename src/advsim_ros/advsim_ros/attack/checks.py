@@ -94,8 +94,8 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     """Build every node's configs the way the node will, so bad parameters fail here, not in a process."""
     from advsim_ros.core.closed_loop import ControllerConfig
     from advsim_ros.core.feasibility import PerturberConfig
+    from advsim_ros.core.lidar.config import ResimNodeConfig
     from advsim_ros.core.reactive import IdmConfig
-    from advsim_ros.nodes.lidar_resim import ResimNodeConfig
     from advsim_ros.ros.lockstep import PlayerConfig
 
     shared = {"window", "bag", "run_id"}

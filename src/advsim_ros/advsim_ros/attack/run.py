@@ -69,7 +69,12 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
         "/**": {"ros__parameters": {"window": {"scenario_bag": str(options.bag.resolve())}}},
         "/scenario_player": {"ros__parameters": {"plan_timeout": options.plan_timeout, "loop": options.loop}},
         # closed loop renders sweeps from where the ego drove: the model is needed even when nothing moves
-        "/lidar_resim": {"ros__parameters": {"build_model": not options.replay_only or options.loop == "closed"}},
+        "/lidar_resim": {
+            "ros__parameters": {
+                "build_model": not options.replay_only or options.loop == "closed",
+                "history_sweeps_only": options.loop == "open",  # open loop requests no later frame
+            }
+        },
     }
     if not options.replay_only:
         overrides["/perturber"] = {"ros__parameters": {"num_actors": options.actors}}

@@ -9,6 +9,7 @@ lidar_resim, which computes while the others wait, in a process of its own.
 
 from __future__ import annotations
 
+import importlib
 import sys
 from collections.abc import Callable
 
@@ -16,31 +17,30 @@ from rclpy.node import Node
 
 from advsim_ros.ros.graph_node import run_nodes
 
+# Each node's module is imported only when the node is run here: lidar_resim's alone would
+# bring Open3D (about 170 MB resident) into a process that never casts a ray.
+_MODULES = {
+    "scenario_player": ("advsim_ros.nodes.scenario_player", "ScenarioPlayer"),
+    "scorer": ("advsim_ros.nodes.scorer", "Scorer"),
+    "perturber": ("advsim_ros.nodes.perturber", "Perturber"),
+    "search": ("advsim_ros.nodes.search", "SearchNode"),
+    "lidar_resim": ("advsim_ros.nodes.lidar_resim", "LidarResim"),
+}
 
-def _factories() -> dict[str, Callable[[], Node]]:
-    from advsim_ros.nodes.lidar_resim import LidarResim
-    from advsim_ros.nodes.perturber import Perturber
-    from advsim_ros.nodes.scenario_player import ScenarioPlayer
-    from advsim_ros.nodes.scorer import Scorer
-    from advsim_ros.nodes.search import SearchNode
 
-    return {
-        "scenario_player": ScenarioPlayer,
-        "scorer": Scorer,
-        "perturber": Perturber,
-        "search": SearchNode,
-        "lidar_resim": LidarResim,
-    }
+def _factory(name: str) -> Callable[[], Node]:
+    module, attribute = _MODULES[name]
+    factory: Callable[[], Node] = getattr(importlib.import_module(module), attribute)
+    return factory
 
 
 def main() -> None:
     arguments = sys.argv[1 : sys.argv.index("--ros-args")] if "--ros-args" in sys.argv else sys.argv[1:]
-    factories = _factories()
-    unknown = [name for name in arguments if name not in factories]
+    unknown = [name for name in arguments if name not in _MODULES]
     if not arguments or unknown:
-        print(f"{sys.argv[0]}: name the nodes to run, from {', '.join(factories)} (got {arguments})", file=sys.stderr)
+        print(f"{sys.argv[0]}: name the nodes to run, from {', '.join(_MODULES)} (got {arguments})", file=sys.stderr)
         sys.exit(2)
-    run_nodes([factories[name] for name in arguments])
+    run_nodes([_factory(name) for name in arguments])
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ request names the actors that left their tracks and where they are: they are pla
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +23,11 @@ from advsim_ros.contract import topics
 from advsim_ros.contract.protocol import FrameRequestRecord, frame_request_from_msg
 from advsim_ros.contract.scenario import cloud_msg
 from advsim_ros.contract.tracks import track_array_from_msg
-from advsim_ros.core.lidar.config import ResimConfig
+from advsim_ros.core.lidar.config import ResimConfig, ResimNodeConfig
 from advsim_ros.core.lidar.novel_view import render_from_model
 from advsim_ros.core.lidar.query import query_sweep, world_rng
 from advsim_ros.core.lidar.resim import ResimModel
+from advsim_ros.core.memory import release_freed_memory
 from advsim_ros.core.reactive import with_overrides
 from advsim_ros.core.types import ActorTrack, FloatArray, ScenarioError, Sweep, replace_actors
 from advsim_ros.io.cache import cache_root
@@ -35,33 +36,36 @@ from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.params import declare_config
 
 
-@dataclass(frozen=True)
-class ResimNodeConfig:
-    """/lidar_resim parameters besides the re-simulation settings (params/lidar_resim.yaml)."""
-
-    seed: int = 0  # ray-drop sampling: seeded from (seed, frame, the perturbed tracks' content)
-    cache_dir: str = ""  # where the background and assets are cached; "" = <advsim cache>/resim
-    build_model: bool = True  # build the model at start-up (off for `advsim replay`: nothing moves there)
-    render_distance: float = 0.01  # closed loop: a sensor further than this from where it was logged is rendered [m]
-    render_yaw: float = 0.001  # ... or turned more than this [rad]; nearer, the logged sweep is re-simulated
-
-
 class LidarResim(ScenarioNode):
     def __init__(self) -> None:
         super().__init__("lidar_resim")
         self.config = declare_config(self, ResimNodeConfig)
         resim_config = declare_config(self, ResimConfig, "resim.")
-        self.scenario, self.clock = self.load_scenario(load_sweeps=True)
-        self.sweeps = {sweep.stamp_ns: sweep for sweep in self.scenario.sweeps}
-        frames = self.window.frame_indices(self.scenario.num_frames)[: self.window.history_frames]
-        missing = [i for i in frames if int(self.scenario.frame_stamps_ns[i]) not in self.sweeps]
+        scenario, self.clock = self.load_scenario(load_sweeps=True)  # every sweep: the model is built from them all
+        history = self.window.frame_indices(scenario.num_frames)[: self.window.history_frames]
+        logged = {sweep.stamp_ns for sweep in scenario.sweeps}
+        # open loop asks for the history frames only; closed loop may re-simulate any frame of the
+        # window, and renders with a calibration taken from the log's sweeps (novel_view): all are kept
+        stamps = {int(scenario.frame_stamps_ns[i]) for i in history} if self.config.history_sweeps_only else logged
+        missing = [i for i in history if int(scenario.frame_stamps_ns[i]) not in logged]
         if missing:
-            raise ScenarioError(f"scenario {self.scenario.scenario_id}: no LiDAR sweep at history frames {missing}")
-        self.model: ResimModel | None = None
+            raise ScenarioError(f"scenario {scenario.scenario_id}: no LiDAR sweep at history frames {missing}")
+        model: ResimModel | None = None
         if self.config.build_model:
             cache = Path(self.config.cache_dir) if self.config.cache_dir else cache_root() / "resim"
             self.get_logger().info(f"loading or building the re-simulation model (cache {cache})")
-            self.model = ResimModel.build(self.scenario, cache_dir=cache, config=resim_config)
+            model = ResimModel.build(scenario, cache_dir=cache, config=resim_config)
+        # The sweeps not needed are dropped before the model's ray-casting structures are built
+        # (a 6 s KITTI window: 60 sweeps, 120 MB, of which open loop replays 10).
+        self.scenario = dataclasses.replace(
+            scenario, sweeps=tuple(sweep for sweep in scenario.sweeps if sweep.stamp_ns in stamps)
+        )
+        self.get_logger().info(f"keeping {len(self.scenario.sweeps)} of {len(scenario.sweeps)} sweeps")
+        del scenario
+        release_freed_memory()  # the dropped sweeps' pages, before the structures are built on top
+        self.sweeps = {sweep.stamp_ns: sweep for sweep in self.scenario.sweeps}
+        self.model = model.prepare() if model is not None else None
+        release_freed_memory()  # the triangles Embree copied
         self.publish_sweep = self.publisher(topics.RENDERED)
         self.tracks: dict[int, tuple[ActorTrack, ...]] = {}
         self.waiting: list[FrameRequestRecord] = []

@@ -97,3 +97,20 @@ def load_resim_config(path: Path) -> ResimConfig:
     parameters = load_node_params(path, RESIM_NODE)
     section = parameters.get(RESIM_PARAMS_KEY, {})
     return config_from_mapping(ResimConfig, section, f"{path} /{RESIM_NODE} {RESIM_PARAMS_KEY}")
+
+
+@dataclass(frozen=True)
+class ResimNodeConfig:
+    """/lidar_resim parameters besides the re-simulation settings (params/lidar_resim.yaml).
+
+    Here, not in the node's module, so that `advsim attack` checks them without importing Open3D.
+    """
+
+    seed: int = 0  # ray-drop sampling: seeded from (seed, frame, the perturbed tracks' content)
+    cache_dir: str = ""  # where the background and assets are cached; "" = <advsim cache>/resim
+    build_model: bool = True  # build the model at start-up (off for `advsim replay`: nothing moves there)
+    render_distance: float = 0.01  # closed loop: a sensor further than this from where it was logged is rendered [m]
+    render_yaw: float = 0.001  # ... or turned more than this [rad]; nearer, the logged sweep is re-simulated
+    # keep only the history frames' sweeps in memory (open loop requests no other frame; `advsim attack` sets it);
+    # off, every sweep of the log is kept (closed loop re-simulates later frames and calibrates its rendering on them)
+    history_sweeps_only: bool = False

@@ -111,7 +111,7 @@ class ModelRenderer:
         # Surfels become two triangles each; the ground fill was appended last.
         self.fill_triangles = 2 * (surfels.count - model.background.fill_count)
         # What a hit on each background triangle returns; the last entry stands for no hit.
-        triangle_intensity = model.background_caster.surface.intensity
+        triangle_intensity = model.background_caster.intensity
         self._no_triangle = triangle_intensity.shape[0]
         self._triangle_intensity = np.append(triangle_intensity, 0.0).astype(np.float64)
         self.beam_height = float(np.max(np.abs(model.beam_rows.beam_heights)))

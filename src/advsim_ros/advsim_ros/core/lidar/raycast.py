@@ -9,16 +9,45 @@ at any pose without moving its triangles. Open3D's RaycastingScene (Embree) does
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import importlib.machinery
+import importlib.util
+import sys
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import open3d as o3d
 
 from advsim_ros.core.lidar.sensor import rotate
 from advsim_ros.core.types import FloatArray, IntArray, ScenarioError
+
+
+def _open3d() -> Any:
+    """Open3D's compiled module (``open3d.pybind``: core, t.geometry, ...) without the package's __init__.
+
+    That __init__ also imports Open3D's visualisers and with them plotly, dash and IPython: about
+    45 MB resident in every process that casts a ray, for nothing. The package as usual when its
+    compiled module is not where Open3D 0.19/0.20 wheels put it, or when Open3D is already imported.
+    """
+    imported = sys.modules.get("open3d")
+    spec = importlib.util.find_spec("open3d") if imported is None else None
+    if spec is not None and spec.submodule_search_locations:
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+            for folder in spec.submodule_search_locations:
+                path = Path(folder) / f"pybind{suffix}"
+                library = importlib.util.spec_from_file_location("open3d.pybind", path)
+                if path.is_file() and library is not None and library.loader is not None:
+                    module = importlib.util.module_from_spec(library)
+                    library.loader.exec_module(module)
+                    return module
+    import open3d
+
+    return open3d
+
+
+o3d = _open3d()
 
 AnyFloatArray = npt.NDArray[np.floating[Any]]  # any float dtype on input; stored as float32
 AnyIntArray = npt.NDArray[np.integer[Any]]
@@ -27,7 +56,7 @@ AnyIntArray = npt.NDArray[np.integer[Any]]
 NO_TRIANGLE = int(o3d.t.geometry.RaycastingScene.INVALID_ID)  # the triangle of a ray that hits nothing (cast_first)
 
 
-def as_tensor(array: np.ndarray) -> o3d.core.Tensor:
+def as_tensor(array: np.ndarray) -> Any:
     """An Open3D tensor sharing the memory of a C-contiguous numpy array."""
     return o3d.core.Tensor.from_numpy(np.ascontiguousarray(array))
 
@@ -94,17 +123,44 @@ def cuboid_surface(lower: npt.ArrayLike, upper: npt.ArrayLike, intensity: float)
     return Surface(vertices=corners, triangles=triangles, intensity=np.full(12, intensity))
 
 
+SURFEL_CHUNK = 65_536  # surfels turned into triangles at a time (bounds the float64 temporaries)
+
+
 def surfels_to_surface(
-    centers: FloatArray, normals: FloatArray, half_sizes: FloatArray, intensity: FloatArray
+    centers: AnyFloatArray, normals: AnyFloatArray, half_sizes: AnyFloatArray, intensity: AnyFloatArray
 ) -> Surface:
     """Square surfels (disc stand-ins) as two triangles each.
 
     centers (S, 3) [m], normals (S, 3) unit, half_sizes (S,) half the square's side [m],
-    intensity (S,). A ray hits either side of a triangle.
+    intensity (S,). A ray hits either side of a triangle. The corners are computed in float64
+    (whatever the inputs' float type), a chunk of surfels at a time: each surfel's corners
+    depend on that surfel alone, so chunking changes no value, and a log's million background
+    surfels never hold a dozen float64 copies at once.
     """
     count = centers.shape[0]
     if normals.shape != (count, 3) or half_sizes.shape != (count,) or intensity.shape != (count,):
         raise ScenarioError("surfels_to_surface: centers, normals, half_sizes and intensity disagree in length")
+    vertices = np.empty((count, 4, 3), dtype=np.float32)
+    for start in range(0, count, SURFEL_CHUNK):
+        part = slice(start, start + SURFEL_CHUNK)
+        vertices[part] = _surfel_corners(
+            np.asarray(centers[part], dtype=np.float64),
+            np.asarray(normals[part], dtype=np.float64),
+            np.asarray(half_sizes[part], dtype=np.float64),
+        )
+    base = 4 * np.arange(count, dtype=np.int32)[:, None]
+    corners = np.array([[0, 1, 2, 0, 2, 3]], dtype=np.int32)
+    triangles = (base + corners).reshape(-1, 3)
+    # intensity through float64 as before, so the float32 per-triangle values are unchanged
+    return Surface(
+        vertices=vertices.reshape(-1, 3),
+        triangles=triangles,
+        intensity=np.repeat(np.asarray(intensity, dtype=np.float64), 2),
+    )
+
+
+def _surfel_corners(centers: FloatArray, normals: FloatArray, half_sizes: FloatArray) -> FloatArray:
+    """(S, 4, 3) the corners of square surfels, in float64."""
     # Any vector not parallel to the normal gives the first tangent.
     helper = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
     tangent_u = np.cross(normals, helper)
@@ -112,10 +168,7 @@ def surfels_to_surface(
     tangent_v = np.cross(normals, tangent_u)
     u = tangent_u * half_sizes[:, None]
     v = tangent_v * half_sizes[:, None]
-    vertices = np.stack([centers - u - v, centers + u - v, centers + u + v, centers - u + v], axis=1).reshape(-1, 3)
-    base = 4 * np.arange(count, dtype=np.int32)[:, None]
-    triangles = np.concatenate([base + np.array([[0, 1, 2]]), base + np.array([[0, 2, 3]])], axis=1).reshape(-1, 3)
-    return Surface(vertices=vertices, triangles=triangles, intensity=np.repeat(intensity, 2))
+    return np.stack([centers - u - v, centers + u - v, centers + u + v, centers - u + v], axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -147,17 +200,51 @@ class RayHits:
 
 
 class SurfaceCaster:
-    """A surface ready for ray casting (the acceleration structure is built on construction)."""
+    """A surface ready for ray casting (the acceleration structure is built on construction).
+
+    ``SurfaceCaster.lean(make_surface)`` keeps only what a cast needs (the triangles'
+    intensities): Embree holds its own copy of the vertices and triangles, so the surface's
+    arrays would be a second one (a log's background: 2 M triangles, about 80 MB).
+    """
 
     def __init__(self, surface: Surface) -> None:
-        self.surface = surface
+        self._surface: Surface | None = surface
         self._scene = o3d.t.geometry.RaycastingScene()
+        self._add(surface)
+        self._commit()
+
+    @classmethod
+    def lean(cls, make_surface: Callable[[], Surface]) -> SurfaceCaster:
+        """A caster of the surface ``make_surface()`` returns, which it does not keep.
+
+        The surface's vertices and triangles are freed as soon as Embree has copied them, before
+        Embree builds its hierarchy (whose own temporaries then do not come on top of them).
+        """
+        caster = cls.__new__(cls)
+        caster._surface = None
+        caster._scene = o3d.t.geometry.RaycastingScene()
+        caster._add(make_surface())  # the only reference to the surface: gone when _add returns
+        caster._commit()
+        return caster
+
+    def _add(self, surface: Surface) -> None:
+        self.intensity = surface.intensity  # (T,) what a hit on each triangle returns
+        self.num_triangles = surface.num_triangles
         if surface.num_triangles:
-            # The tensors share memory with these arrays: keep them alive as long as the scene.
-            self._vertices = np.ascontiguousarray(surface.vertices, dtype=np.float32)
-            self._triangles = np.ascontiguousarray(surface.triangles, dtype=np.uint32)
-            self._scene.add_triangles(as_tensor(self._vertices), as_tensor(self._triangles))
-            self._scene.cast_rays(as_tensor(np.array([[0, 0, 0, 0, 0, 1]], dtype=np.float32)))  # commit now
+            # add_triangles copies both arrays into Embree's buffers; the int32 indices are passed as
+            # uint32 without a copy (they are never negative: Surface checks them).
+            self._scene.add_triangles(as_tensor(surface.vertices), as_tensor(surface.triangles.view(np.uint32)))
+
+    def _commit(self) -> None:
+        if self.num_triangles:
+            self._scene.cast_rays(as_tensor(np.array([[0, 0, 0, 0, 0, 1]], dtype=np.float32)))  # builds it now
+
+    @property
+    def surface(self) -> Surface:
+        """The surface cast against (not kept by a lean caster)."""
+        if self._surface is None:
+            raise ScenarioError("SurfaceCaster: a lean caster does not keep its surface")
+        return self._surface
 
     def cast(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None = None) -> RayHits:
         """Hits of rays from origins ((3,) or (N, 3)) along unit directions (N, 3) in the frame F.
@@ -165,21 +252,21 @@ class SurfaceCaster:
         `pose` (4, 4) is T_F_surface, the surface's pose in F (identity when None).
         """
         count = directions.shape[0]
-        if count == 0 or self.surface.num_triangles == 0:
+        if count == 0 or self.num_triangles == 0:
             return RayHits.misses(count)
         return self.cast_prepared(self._rays(origins, directions, pose))
 
     def cast_prepared(self, rays: npt.NDArray[np.float32]) -> RayHits:
         """``cast`` for rays already in the surface's frame: (N, 6) float32 origins and unit directions."""
         count = rays.shape[0]
-        if count == 0 or self.surface.num_triangles == 0:
+        if count == 0 or self.num_triangles == 0:
             return RayHits.misses(count)
         answer = self._scene.cast_rays(as_tensor(rays))
         ranges = answer["t_hit"].numpy().astype(np.float64)
         hit = np.isfinite(ranges)
         primitive = answer["primitive_ids"].numpy().astype(np.int64)
         intensity = np.zeros(count)
-        intensity[hit] = self.surface.intensity[primitive[hit]]
+        intensity[hit] = self.intensity[primitive[hit]]
         return RayHits(
             ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1), triangles=np.where(hit, primitive, -1)
         )
@@ -191,7 +278,7 @@ class SurfaceCaster:
         triangles (N,) uint32 (``NO_TRIANGLE``: no hit).
         """
         count = rays.shape[0]
-        if count == 0 or self.surface.num_triangles == 0:
+        if count == 0 or self.num_triangles == 0:
             return np.full(count, np.inf, dtype=np.float32), np.full(count, NO_TRIANGLE, dtype=np.uint32)
         answer = self._scene.cast_rays(as_tensor(rays))
         ranges: npt.NDArray[np.float32] = answer["t_hit"].numpy()
@@ -201,7 +288,7 @@ class SurfaceCaster:
     def cast_all(self, origins: npt.ArrayLike, directions: FloatArray, pose: FloatArray | None = None) -> Intersections:
         """Every crossing of the rays (as in ``cast``) with the surface, not only the first."""
         count = directions.shape[0]
-        if count == 0 or self.surface.num_triangles == 0:
+        if count == 0 or self.num_triangles == 0:
             empty = np.zeros(0, dtype=np.int64)
             return Intersections(ray_ids=empty, ranges=np.zeros(0), triangles=empty)
         rays = self._rays(origins, directions, pose)

@@ -70,12 +70,27 @@ class ResimModel:
         self.background = background
         self.assets = assets
         self.config = config
-        self.background_caster = SurfaceCaster(background.surfels.surface())
-        # Every asset's acceleration structure is built now, not on a query's first sweep.
-        self._asset_casters: dict[str, SurfaceCaster] = {
-            key: SurfaceCaster(asset.surface()) for key, asset in assets.items()
-        }
+        self._background_caster: SurfaceCaster | None = None
+        self._asset_casters: dict[str, SurfaceCaster] = {}
         self._geometries: OrderedDict[tuple[int, int, int], SweepGeometry] = OrderedDict()
+
+    def prepare(self) -> ResimModel:
+        """Build every ray-casting structure now, not on a query's first sweep; returns the model.
+
+        Separate from construction so that a caller can first drop what it no longer needs
+        (the lidar_resim node: the sweeps it never re-simulates) and the structures, the
+        model's largest part, are not built on top of it.
+        """
+        for actor_id in self.assets:
+            self.asset_caster(actor_id)
+        _ = self.background_caster
+        return self
+
+    @property
+    def background_caster(self) -> SurfaceCaster:
+        if self._background_caster is None:
+            self._background_caster = SurfaceCaster.lean(self.background.surfels.surface)
+        return self._background_caster
 
     # ----- building and caching -------------------------------------------------------------
 
@@ -90,7 +105,7 @@ class ResimModel:
         path = Path(cache_dir) / f"resim-{scenario_digest(scenario, config)}.npz"
         with build_lock(path):
             arrays = load_arrays(path)
-            if arrays is not None:
+            if arrays is not None:  # the ray-casting structures come with prepare() or the first cast
                 return cls(*model_parts(arrays), config)
             model = cls._build_fresh(scenario, config)
             save_arrays(path, model_arrays(model.beam_rows, model.background, model.assets))
@@ -134,7 +149,7 @@ class ResimModel:
     def asset_caster(self, actor_id: str) -> SurfaceCaster:
         caster = self._asset_casters.get(actor_id)
         if caster is None:
-            caster = SurfaceCaster(self.assets[actor_id].surface())
+            caster = SurfaceCaster.lean(self.assets[actor_id].surface)
             self._asset_casters[actor_id] = caster
         return caster
 
@@ -212,7 +227,7 @@ class ResimModel:
             active = active[found]
         hit = triangles >= 0
         intensity = np.zeros(count)
-        intensity[hit] = caster.surface.intensity[triangles[hit]]
+        intensity[hit] = caster.intensity[triangles[hit]]
         return RayHits(ranges=ranges, intensity=intensity, source=np.where(hit, 0, -1), triangles=triangles)
 
 

@@ -155,12 +155,8 @@ class SurfelCloud:
         return int(self.centers.shape[0])
 
     def surface(self) -> Surface:
-        return surfels_to_surface(
-            self.centers.astype(np.float64),
-            self.normals.astype(np.float64),
-            self.half_sizes.astype(np.float64),
-            self.intensity.astype(np.float64),
-        )
+        # converted to float64 a chunk at a time inside, not as whole copies here
+        return surfels_to_surface(self.centers, self.normals, self.half_sizes, self.intensity)
 
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
         return {f"{prefix}{name}": getattr(self, name) for name in ("centers", "normals", "half_sizes", "intensity")}
