@@ -163,3 +163,17 @@ def test_the_ray_caster_loads_open3d_without_its_visualisers() -> None:
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"
+
+
+def test_open3d_imported_after_the_ray_caster_works_as_usual() -> None:
+    # A user's script that imports Open3D itself after advsim_ros' ray caster gets the same compiled module
+    # (initialising it twice fails); and the other way round the ray caster takes the package's.
+    code = (
+        "from advsim_ros.core.lidar import raycast\n"
+        "import open3d\n"
+        "assert open3d.t.geometry.RaycastingScene is raycast.o3d.t.geometry.RaycastingScene\n"
+        "print(open3d.core.Tensor([1, 2]).numpy().sum())\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip() == "3"

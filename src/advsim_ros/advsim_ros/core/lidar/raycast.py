@@ -41,6 +41,9 @@ def _open3d() -> Any:
                 if path.is_file() and library is not None and library.loader is not None:
                     module = importlib.util.module_from_spec(library)
                     library.loader.exec_module(module)
+                    # Registered under its own name, so that a later `import open3d` (a user's script) takes
+                    # this one: a second initialisation of the compiled module fails ("already defined").
+                    sys.modules["open3d.pybind"] = module
                     return module
     import open3d
 
