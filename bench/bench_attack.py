@@ -10,9 +10,10 @@ graph's timeline traced (ADVSIM_TRACE_DIR) for a per-query breakdown:
    cold caches (re-simulation model and drivable area built) and again warm: wall time, time to the
    first finished query, per-query breakdown, peak memory and CPU per process.
 
-``--baseline DIR`` runs the same full attack with another checkout's `advsim` (its own .venv, e.g.
+``--baseline DIR`` runs the same warm full attack with another checkout's `advsim` (its own .venv, e.g.
 the previous main in a git worktree) alternately with this one, so the machine's drift cancels,
-and reports the ratio of the medians.
+with the same figures (memory per process included), the ratio of the medians and whether the
+scores are the same.
 
 ``--lanes K`` (K > 1) adds, per repeat and alternately, the warm 75-query BO attack with batches of
 K queries after the initial design (``bo.batch_size=K``, greedy qUCB) on one lane and on K lanes
@@ -89,11 +90,14 @@ def traced(
     queries: int,
     cache: Path,
     extra: tuple[str, ...] = (),
+    checkout: Path = REPO,
 ) -> dict[str, Any]:
-    """One run of this checkout, with its trace turned into figures."""
+    """One run of a checkout (this one by default), with its trace turned into figures."""
     trace_dir = scratch / f"{name}-trace"
     env = {**os.environ, TRACE_ENV: str(trace_dir), CACHE_ENV: str(cache)}
-    wall = attack(REPO, bag, scratch / name, stack, algorithm, queries, env, extra)
+    if checkout != REPO:  # the other checkout's venv sets up its own ROS wheels
+        env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
+    wall = attack(checkout, bag, scratch / name, stack, algorithm, queries, env, extra)
     events = read_trace(trace_dir)
     start = next(stamp for stamp, _, event, _, _ in events if event == "checked")
     first = next(stamp for stamp, _, event, _, _ in events if event == "journaled")
@@ -154,18 +158,19 @@ def main() -> int:
                 run = traced(bag, scratch, f"{name}-{repeat}", "reference", algorithm, args.queries, cache, extra)
                 lanes.setdefault(name, []).append(run)
             if args.baseline is not None:
-                env = {key: value for key, value in os.environ.items() if key != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
                 baseline.append(
-                    attack(args.baseline, bag, scratch / f"base{repeat}", "reference", "bo", args.queries, env)
+                    traced(bag, scratch, f"base{repeat}", "reference", "bo", args.queries, cache, (), args.baseline)
                 )
         figures["full_warm"] = warm[0] if len(warm) == 1 else {"runs": warm}
         figures["full_warm_median_wall_s"] = statistics.median(run["wall_s"] for run in warm)
         if baseline:
+            median = statistics.median(run["wall_s"] for run in baseline)
             figures["baseline"] = {
                 "checkout": str(args.baseline.resolve()),
-                "wall_s": baseline,
-                "median_wall_s": statistics.median(baseline),
-                "ratio_this_to_baseline": figures["full_warm_median_wall_s"] / statistics.median(baseline),
+                "runs": baseline,
+                "median_wall_s": median,
+                "ratio_this_to_baseline": figures["full_warm_median_wall_s"] / median,
+                "same_scores": all(run["scores"] == warm[0]["scores"] for run in baseline),
             }
         if lanes:
             medians = {name: statistics.median(run["wall_s"] for run in runs) for name, runs in lanes.items()}
