@@ -86,7 +86,10 @@ def test_the_split_never_lets_a_test_window_share_a_frame_with_training() -> Non
             assert frames <= trained_frames, start
     assert window_split("synthetic_100", 0, 60, CONFIG) == "train"
     assert window_split("synthetic_104", 0, 60, CONFIG) == "validation"  # validates fine-tuning, never trains
-    assert window_split("synthetic_lead_brake_100", 0, 60, CONFIG) == "test"  # another family: never trained
+    assert window_split("synthetic_lead_brake_100", 0, 60, CONFIG) == "train"  # a family log of a training seed
+    assert window_split("synthetic_left_turn_105", 0, 60, CONFIG) == "validation"
+    assert window_split("synthetic_lead_brake_3", 0, 60, CONFIG) == "test"  # any other seed, any family
+    assert window_split("synthetic_bogus_100", 0, 60, CONFIG) == "test"  # not a synthetic name: not trusted
     assert window_split("av2_7fab", 0, 60, CONFIG) == "test"
     assert source_window("kitti_tracking_0000@20/adversarial") == ("kitti_tracking_0000", 20)
     assert source_window("synthetic_3") == ("synthetic_3", 0)
