@@ -24,6 +24,12 @@ done
 sed -e "s#CURRICULUM_PARAMS#$(realpath "$out/stack_learned_curriculum.yaml")#" \
     -e "s#ROBUST_PARAMS#$(realpath "$out/stack_learned_robust.yaml")#" \
     params/campaign_table2.yaml > "$out/campaign.yaml"
-"$advsim" campaign "$out/campaign.yaml" -o "$out/eval" --workers "$workers"
-.venv/bin/python -m advsim_ros.stacks.learned.table2 "$out/eval" | tee "$out/table2.md"
-echo "table2: $out/table2.md (the standard, curriculum and robust rows, paired differences); $out/eval/report.md"
+# The standard and robust stacks first, scene by scene (the comparison Table 2 is about), then the
+# curriculum stack on the same scenes: a run stopped early has whole pairs, and the same n for both.
+grep -v "name: learned_curriculum" "$out/campaign.yaml" > "$out/campaign_robust.yaml"
+grep -v -e "^  - learned$" -e "name: learned_robust" "$out/campaign.yaml" > "$out/campaign_curriculum.yaml"
+"$advsim" campaign "$out/campaign_robust.yaml" -o "$out/eval" --workers "$workers"
+mkdir -p "$out/eval_curriculum" && cp -rn "$out/eval/logs" "$out/eval_curriculum/"  # the same logs, not regenerated
+"$advsim" campaign "$out/campaign_curriculum.yaml" -o "$out/eval_curriculum" --workers "$workers"
+.venv/bin/python -m advsim_ros.stacks.learned.table2 "$out/eval" "$out/eval_curriculum" | tee "$out/table2.md"
+echo "table2: $out/table2.md (each stack original vs adversarial, paired differences); reports in $out/eval*/report.md"
