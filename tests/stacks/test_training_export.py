@@ -86,7 +86,10 @@ def test_the_split_never_lets_a_test_window_share_a_frame_with_training() -> Non
             assert frames <= trained_frames, start
     assert window_split("synthetic_100", 0, 60, CONFIG) == "train"
     assert window_split("synthetic_104", 0, 60, CONFIG) == "validation"  # validates fine-tuning, never trains
-    assert window_split("synthetic_lead_brake_100", 0, 60, CONFIG) == "test"  # another family: never trained
+    assert window_split("synthetic_lead_brake_100", 0, 60, CONFIG) == "train"  # a family log of a training seed
+    assert window_split("synthetic_left_turn_105", 0, 60, CONFIG) == "validation"
+    assert window_split("synthetic_lead_brake_3", 0, 60, CONFIG) == "test"  # any other seed, any family
+    assert window_split("synthetic_bogus_100", 0, 60, CONFIG) == "test"  # not a synthetic name: not trusted
     assert window_split("av2_7fab", 0, 60, CONFIG) == "test"
     assert source_window("kitti_tracking_0000@20/adversarial") == ("kitti_tracking_0000", 20)
     assert source_window("synthetic_3") == ("synthetic_3", 0)
@@ -126,3 +129,32 @@ def test_robust_training_fine_tunes_on_logs_plus_found_scenarios_reproducibly(su
     assert any(changed)  # fine-tuned, not retrained from scratch nor left as it was
     with pytest.raises(StackError, match="robust training needs adversarial samples"):
         train_il(small, None, tmp_path / "none.pt", scheme="robust")
+
+
+def test_robust_training_validates_on_found_scenarios_of_the_validation_split_and_never_trains_on_them(
+    suite: Path, tmp_path: Path
+) -> None:
+    import dataclasses
+
+    from advsim_ros.stacks.commands import train_il_command
+
+    export_training(suite, tmp_path / "data", CONFIG)
+    # the same suite read with seed 3 as a validation seed: its held-out scenario becomes validation data
+    validating = dataclasses.replace(CONFIG, training=dataclasses.replace(CONFIG.training, validation_seeds=(3,)))
+    export_training(suite, tmp_path / "data_validation", validating)
+    index = json.loads((tmp_path / "data_validation" / "index.json").read_text())
+    assert [shard["split"] for shard in index["shards"]] == ["train", "validation"]
+    params = tmp_path / "learned.yaml"
+    params.write_text(
+        "/learned_stack:\n  ros__parameters:\n    training:\n      synthetic_seeds: [5]\n"
+        "      synthetic_duration: 6.2\n      finetune_epochs: 1\n      finetune_repeat: 2\n"
+        "      validation_seeds: [6]\n"
+    )
+    runs = {
+        name: train_il_command(tmp_path / f"{name}.pt", None, params, None, lambda _: None, "robust", folders)
+        for name, folders in (("plain", [tmp_path / "data"]), ("validated", [tmp_path / "data_validation"]))
+    }
+    assert runs["validated"]["sources"] == runs["plain"]["sources"]  # validation scenarios are never trained on
+    assert runs["validated"]["validation_losses"] != runs["plain"]["validation_losses"]  # ... but measured
+    with pytest.raises(StackError, match="only --scheme robust"):
+        train_il_command(tmp_path / "c.pt", None, params, None, lambda _: None, "curriculum", [tmp_path / "data"])

@@ -73,8 +73,10 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
         "windows by curation rate; robust: fine-tune on the logs plus found scenarios (--adversarial)",
     )  # fmt: skip
     train.add_argument(
-        "--adversarial", type=Path, default=None, help="an `advsim export training` folder (its train split is used)"
-    )
+        "--adversarial", type=Path, action="append", default=None,
+        help="an `advsim export training` folder: its train split is trained on, its validation split joins early "
+        "stopping (repeatable)",
+    )  # fmt: skip
     train.set_defaults(
         run=lambda args: print_result(
             json.dumps(

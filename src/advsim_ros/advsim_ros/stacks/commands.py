@@ -219,11 +219,13 @@ def train_il_command(
     epochs: int | None,
     log: Callable[[str], None],
     scheme: str = "standard",
-    adversarial_dir: Path | None = None,
+    adversarial_dir: Path | Sequence[Path] | None = None,
 ) -> dict[str, Any]:
     """Train the learned planner and write its weights; returns the training report as a dict.
 
     Curriculum training ranks windows with the curation parameters (params/curation.yaml, as campaigns do).
+    Robust training trains on the train-split shards of every ``adversarial_dir`` and stops early on
+    their validation-split shards too (never on test ones).
     """
     from advsim_ros.core.curation import CurationConfig, load_curation_config
     from advsim_ros.stacks.learned.config import load_learned_config
@@ -238,12 +240,17 @@ def train_il_command(
         old = config.training
         training = replace(old, epochs=epochs) if scheme == "standard" else replace(old, finetune_epochs=epochs)
         config = replace(config, training=training)
-    adversarial = training_shards(adversarial_dir) if adversarial_dir is not None else []
-    if adversarial_dir is not None:
-        log(f"{adversarial_dir}: {sum(part.count for part in adversarial)} adversarial samples of the train split")
+    folders = [adversarial_dir] if isinstance(adversarial_dir, Path) else list(adversarial_dir or [])
+    adversarial, adversarial_validation = [], []
+    for folder in folders:
+        train, validation = training_shards(folder), training_shards(folder, "validation")
+        log(f"{folder}: {sum(p.count for p in train)} adversarial samples of the train split, "
+            f"{sum(p.count for p in validation)} of the validation split")  # fmt: skip
+        adversarial += train
+        adversarial_validation += validation
     curation_file = default_params_file("curation.yaml")
     curation = load_curation_config(curation_file) if curation_file.is_file() else CurationConfig()
-    report = train_il(config, kitti_root, out, log, scheme, adversarial, curation)
+    report = train_il(config, kitti_root, out, log, scheme, adversarial, curation, adversarial_validation)
     return asdict(report)
 
 

@@ -14,10 +14,13 @@ The split (``window_split``) is decided by the log window a scenario comes from,
 the scenario itself: a failure found on a held-out window is test data even if it was found
 against a stack that trained on other windows of the same log.
 
-- synthetic street logs of the training seeds (``training.synthetic_seeds``) train, those of
-  the validation seeds (``training.validation_seeds``, disjoint from them) validate: fine-tuning
-  stops early on their loss and never trains on them; every other synthetic log (other seeds,
-  other families) is test;
+- synthetic logs are split by their seed, whatever their scene family: those of the training
+  seeds (``training.synthetic_seeds``) train, those of the validation seeds
+  (``training.validation_seeds``, disjoint from them) validate: fine-tuning stops early on their
+  loss and never trains on them; every other seed is test. Standard training reads only the
+  street logs of the training seeds; the scene families of those seeds are there for robust
+  training's found scenarios (params/campaign_table2_train.yaml), so a test scene (another seed)
+  is never a log any training or attack for training saw;
 - the KITTI training sequence trains on windows inside the frames training saw (decisions up
   to ``training.kitti_last_decision`` and their horizons), tests on windows wholly after them,
   and windows straddling the boundary are excluded (they would leak training targets);
@@ -60,12 +63,23 @@ def source_window(scenario_id: str) -> tuple[str, int]:
     return (found.group(1), int(found.group(2))) if found else (scenario_id, 0)
 
 
+def synthetic_seed(log_id: str) -> int | None:
+    """The seed of a synthetic log id (``synthetic_SEED`` or ``synthetic_FAMILY_SEED``, io.synthetic.synthetic_name)."""
+    from advsim_ros.io.synthetic_families import FAMILY_NAMES
+
+    found = re.fullmatch(r"synthetic_(?:([a-z_]+)_)?(\d+)", log_id)
+    if found is None or (found.group(1) is not None and found.group(1) not in FAMILY_NAMES):
+        return None
+    return int(found.group(2))
+
+
 def window_split(log_id: str, first_frame: int, num_frames: int, config: LearnedStackConfig) -> str:
     """Which split a window of a log belongs to: "train", "validation", "test" or "excluded" (module docstring)."""
     training = config.training
-    if log_id in {f"synthetic_{seed}" for seed in training.synthetic_seeds}:
+    seed = synthetic_seed(log_id)
+    if seed is not None and seed in training.synthetic_seeds:
         return "train"
-    if log_id in {f"synthetic_{seed}" for seed in training.validation_seeds}:
+    if seed is not None and seed in training.validation_seeds:
         return "validation"
     if log_id == f"kitti_tracking_{training.kitti_sequence}":
         last_seen = training.kitti_last_decision + config.num_steps  # the last frame a training target reaches

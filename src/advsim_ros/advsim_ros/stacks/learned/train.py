@@ -277,11 +277,14 @@ def fine_tune(
     parts: Sequence[TrainingData],
     extra: Sequence[TrainingData],
     log: Callable[[str], None] | None = None,
+    extra_validation: Sequence[TrainingData] = (),
 ) -> tuple[LearnedStackConfig, TrainingData, Fit]:
     """Fine-tune the configured weights on the logs' samples plus ``extra``, each repeated ``finetune_repeat`` times.
 
     The shared path of curriculum and robust training: ``finetune_epochs`` passes at most, at
-    ``finetune_learning_rate``, early stopping on the validation logs (``validation_data``).
+    ``finetune_learning_rate``, early stopping on the validation logs (``validation_data``) plus
+    ``extra_validation`` (robust training: found scenarios of the validation split, so that the
+    pass kept is the one that imitates best on held-out adversarial scenes too).
     Returns the config the passes ran with, the samples and the fit.
     """
     from advsim_ros.stacks.learned.stack import load_model
@@ -291,7 +294,12 @@ def fine_tune(
     tuned = replace(config, training=replace(training, epochs=training.finetune_epochs,
                                              learning_rate=training.finetune_learning_rate))  # fmt: skip
     data = TrainingData.concatenate([*parts, *list(extra) * training.finetune_repeat])
-    return tuned, data, train_planner(data, tuned, log, initial, validation_data(config, log))
+    validation = validation_data(config, log)
+    if extra_validation:
+        validation = TrainingData.concatenate([*([validation] if validation is not None else []), *extra_validation])
+        if log is not None:
+            log(f"validation: {validation.count} samples, {sum(p.count for p in extra_validation)} of them found")
+    return tuned, data, train_planner(data, tuned, log, initial, validation)
 
 
 def train_il(
@@ -302,6 +310,7 @@ def train_il(
     scheme: str = "standard",
     adversarial: Sequence[TrainingData] = (),
     curation: CurationConfig | None = None,
+    adversarial_validation: Sequence[TrainingData] = (),
 ) -> TrainingReport:
     """Build the data, train, write the weights to `out` atomically; the report says what happened.
 
@@ -312,13 +321,14 @@ def train_il(
     ``curriculum`` the hardest ``training.curriculum_fraction`` of the logs' train-split windows by
     curation rate (``dataset.hardest_windows``, with ``curation``, default CurationConfig()), for
     ``robust`` the adversarial samples (``adversarial``: train-split shards of `advsim export
-    training`).
+    training`); ``adversarial_validation`` (validation-split shards) joins the validation logs in
+    early stopping.
     """
     if scheme not in SCHEMES:
         raise StackError(f"training scheme: expected one of {', '.join(SCHEMES)}, got {scheme!r}")
     if scheme == "robust" and not adversarial:
         raise StackError("robust training needs adversarial samples (`advsim export training`, split 'train')")
-    if scheme != "robust" and adversarial:
+    if scheme != "robust" and (adversarial or adversarial_validation):
         raise StackError(f"{scheme} training takes no adversarial samples (they are for --scheme robust)")
     start = time.perf_counter()
     scenarios = training_scenarios(config, kitti_root)
@@ -342,7 +352,7 @@ def train_il(
             if log is not None:
                 log("hardest train windows (curation rate): " + ", ".join(f"{k} {v:.3f}" for k, v in hard.items()))
             extra = [window.samples(config) for window in windows]
-        config, data, fit = fine_tune(config, parts, extra, log)
+        config, data, fit = fine_tune(config, parts, extra, log, adversarial_validation)
     losses = fit.losses
     sources: dict[str, int] = {}
     for source in data.sources:
@@ -358,6 +368,7 @@ def train_il(
         "kitti_last_decision": config.training.kitti_last_decision if kitti_root is not None else None,
         "scheme": scheme,
         "adversarial_samples": sum(part.count for part in adversarial),
+        "adversarial_validation_samples": sum(part.count for part in adversarial_validation),
     }
     if fine_tuned:
         metadata |= {"hard_windows": hard, "validation_seeds": list(config.training.validation_seeds),

@@ -1,0 +1,80 @@
+"""Table 2 from campaign journals (`python -m advsim_ros.stacks.learned.table2 OUT/eval OUT/eval_curriculum`).
+
+Per stack: the collision rate up to 5 s on the original and the adversarial scenes and L2 to the
+human at 5 s, with bootstrap 95 % intervals (the campaign report's), plus each fine-tuned stack's
+paired difference to the standard one on the scenes both were attacked on: with few scenes the
+two stacks' intervals overlap even when one of them is better on most scenes, and the paired
+difference is what says whether robust training helped. It reads the journal, not results.csv,
+so a campaign stopped early (scripts/table2.sh resumes it) is summarised too, its n as it stands.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.campaign.report import _float, bootstrap_mean, cell
+
+STANDARD = "learned"
+METRICS = (
+    ("original_collision_5s", "original collision ≤5 s [%]", True),
+    ("adversarial_collision_5s", "adversarial collision ≤5 s [%]", True),
+    ("original_l2_human_5s", "original L2 5 s [m]", False),
+    ("adversarial_l2_human_5s", "adversarial L2 5 s [m]", False),
+)
+
+
+def journal_rows(journal: Path) -> list[dict[str, Any]]:
+    """The finished attacks' rows of a campaign journal (OUTDIR/campaign.jsonl)."""
+    rows = []
+    for line in journal.read_text(encoding="utf-8").splitlines():
+        entry = json.loads(line)
+        row = entry.get("row") if isinstance(entry, dict) else None
+        if str(entry.get("job", "")).startswith("attack/") and isinstance(row, dict) and row.get("status") == "ok":
+            rows.append(row)
+    return rows
+
+
+def _scene(row: Mapping[str, Any]) -> tuple[str, int]:
+    return str(row["scenario"]), int(row["window_start"])
+
+
+def paired_differences(rows: Sequence[Mapping[str, Any]], stack: str, metric: str) -> list[float]:
+    """``stack`` minus the standard stack on every scene both were attacked on (scene order)."""
+    standard = {_scene(row): _float(row[metric]) for row in rows if row["stack"] == STANDARD}
+    other = {_scene(row): _float(row[metric]) for row in rows if row["stack"] == stack}
+    return [other[scene] - standard[scene] for scene in sorted(standard.keys() & other.keys())]
+
+
+def table2_markdown(rows: Iterable[Mapping[str, Any]], seed: int = 0) -> str:
+    """The Markdown table: one line per stack, the standard one first."""
+    rows = list(rows)
+    stacks = sorted({str(row["stack"]) for row in rows}, key=lambda name: (name != STANDARD, name))
+    header = ["stack", "n", *(label for _, label, _ in METRICS), "Δ adversarial collision vs standard (paired)"]
+    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    for stack in stacks:
+        own = [row for row in rows if row["stack"] == stack]
+        cells = [cell(bootstrap_mean((row[key] for row in own), seed), percent) for key, _, percent in METRICS]
+        if stack == STANDARD:
+            paired = "–"
+        else:
+            differences = paired_differences(rows, stack, "adversarial_collision_5s")
+            paired = f"{cell(bootstrap_mean(differences, seed), True)} pp (n={len(differences)})"
+        lines.append("| " + " | ".join([stack, str(len(own)), *cells, paired]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args:
+        print("usage: python -m advsim_ros.stacks.learned.table2 CAMPAIGN_OUTDIR...", file=sys.stderr)
+        return 2
+    print(table2_markdown([row for folder in args for row in journal_rows(Path(folder) / "campaign.jsonl")]), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

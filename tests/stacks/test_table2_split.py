@@ -1,0 +1,69 @@
+"""Table 2's campaigns stay on their side of the split: robust training's on training seeds, evaluation on test."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from advsim_ros.campaign.config import load_campaign
+from advsim_ros.io.synthetic import synthetic_name
+from advsim_ros.stacks.learned.config import LearnedStackConfig
+from advsim_ros.stacks.learned.dataset import synthetic_seed, window_split
+
+PARAMS = Path(__file__).resolve().parents[2] / "params"
+CONFIG = LearnedStackConfig()
+
+
+def _log_ids(config_file: str) -> list[str]:
+    campaign = load_campaign(PARAMS / config_file)
+    assert all(source.synthetic_seed is not None for source in campaign.scenarios), "Table 2 uses synthetic logs only"
+    return [synthetic_name(source.synthetic_family, source.synthetic_seed or 0) for source in campaign.scenarios]
+
+
+def test_the_robust_training_campaign_attacks_only_training_split_logs() -> None:
+    log_ids = _log_ids("campaign_table2_train.yaml")
+    assert len(log_ids) >= 16  # many found scenarios, not one log's windows
+    # a synthetic log's split depends on its seed only, so every window of these logs is "train"
+    for log_id in log_ids:
+        for start in (0, 20, 40):
+            assert window_split(log_id, start, 60, CONFIG) == "train", (log_id, start)
+
+
+def test_the_table2_evaluation_attacks_only_test_split_logs_disjoint_from_training() -> None:
+    test_ids = _log_ids("campaign_table2.yaml")
+    assert all(window_split(log_id, 0, 60, CONFIG) == "test" for log_id in test_ids)
+    train_seeds = {synthetic_seed(log_id) for log_id in _log_ids("campaign_table2_train.yaml")}
+    test_seeds = {synthetic_seed(log_id) for log_id in test_ids}
+    assert train_seeds.isdisjoint(test_seeds)
+    assert test_seeds.isdisjoint(CONFIG.training.validation_seeds)
+
+
+def test_synthetic_seed_reads_the_names_synthetic_logs_get() -> None:
+    assert synthetic_seed(synthetic_name("street", 101)) == 101
+    assert synthetic_seed(synthetic_name("left_turn", 3)) == 3
+    assert synthetic_seed("synthetic_bogus_3") is None
+    assert synthetic_seed("kitti_tracking_0000") is None
+
+
+def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene(tmp_path: Path) -> None:
+    import json
+
+    from advsim_ros.stacks.learned.table2 import journal_rows, paired_differences, table2_markdown
+
+    def row(stack: str, scene: str, adversarial: float) -> dict[str, object]:
+        return {"stack": stack, "scenario": scene, "window_start": 0, "status": "ok",
+                "original_collision_5s": 0.0, "adversarial_collision_5s": adversarial,
+                "original_l2_human_5s": 1.0, "adversarial_l2_human_5s": 2.0}  # fmt: skip
+
+    rows = [row("learned", "a", 1.0), row("learned", "b", 1.0), row("learned", "c", 0.0),
+            row("learned_robust", "a", 0.0), row("learned_robust", "b", 1.0)]  # fmt: skip
+    journal = tmp_path / "campaign.jsonl"
+    lines = [{"campaign_journal": 1}, *({"job": f"attack/{i}", "row": r} for i, r in enumerate(rows)),
+             {"job": "attack/failed", "row": {**rows[0], "status": "error"}}]  # fmt: skip
+    journal.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    read = journal_rows(journal)
+    assert len(read) == 5  # the failed attack and the header are not rows
+    assert paired_differences(read, "learned_robust", "adversarial_collision_5s") == [-1.0, 0.0]  # scene c unpaired
+    table = table2_markdown(read).splitlines()
+    assert table[2].startswith("| learned | 3 | 0.0 [0.0, 0.0] | 66.7")
+    assert table[3].startswith("| learned_robust | 2 |")
+    assert table[3].endswith("pp (n=2) |")
