@@ -30,7 +30,9 @@ from advsim_ros.ros.launcher import die_with_parent, start_reaper
 from advsim_ros.ros.reaper import descendants, start_time
 
 ATTACK_CPUS = 1.0  # Ray resources an attack asks for: its graph is mostly one busy process at a time
-ATTACK_MEMORY = int(3.5 * 1024**3)  # [bytes]: a KITTI attack's processes peak at 3.45 GB RSS summed (bench_campaign)
+# [bytes]: a KITTI attack's processes peak at 2.4 GB RSS summed while its graph builds the re-simulation model,
+# 2.0 GB with the model cached (bench/bench_attack.py: graph and orchestrator, cold and warm)
+ATTACK_MEMORY = int(2.5 * 1024**3)
 
 
 @dataclass(frozen=True)
