@@ -31,5 +31,5 @@ grep -v -e "^  - learned$" -e "name: learned_robust" "$out/campaign.yaml" > "$ou
 "$advsim" campaign "$out/campaign_robust.yaml" -o "$out/eval" --workers "$workers"
 mkdir -p "$out/eval_curriculum" && cp -rn "$out/eval/logs" "$out/eval_curriculum/"  # the same logs, not regenerated
 "$advsim" campaign "$out/campaign_curriculum.yaml" -o "$out/eval_curriculum" --workers "$workers"
-.venv/bin/python -m advsim_ros.stacks.learned.table2 "$out/eval" "$out/eval_curriculum" | tee "$out/table2.md"
+.venv/bin/python -m advsim_ros.campaign.table2 "$out/eval" "$out/eval_curriculum" | tee "$out/table2.md"
 echo "table2: $out/table2.md (each stack original vs adversarial, paired differences); reports in $out/eval*/report.md"

@@ -47,7 +47,7 @@ def test_synthetic_seed_reads_the_names_synthetic_logs_get() -> None:
 def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene(tmp_path: Path) -> None:
     import json
 
-    from advsim_ros.stacks.learned.table2 import journal_rows, paired_differences, table2_markdown
+    from advsim_ros.campaign.table2 import journal_rows, paired_differences, table2_markdown
 
     def row(stack: str, scene: str, adversarial: float) -> dict[str, object]:
         return {"stack": stack, "scenario": scene, "window_start": 0, "status": "ok",

@@ -1,4 +1,4 @@
-"""Table 2 from campaign journals (`python -m advsim_ros.stacks.learned.table2 OUT/eval OUT/eval_curriculum`).
+"""Table 2 from campaign journals (`python -m advsim_ros.campaign.table2 OUT/eval OUT/eval_curriculum`).
 
 Per stack: the collision rate up to 5 s on the original and the adversarial scenes and L2 to the
 human at 5 s, with bootstrap 95 % intervals (the campaign report's), plus each fine-tuned stack's
@@ -70,7 +70,7 @@ def table2_markdown(rows: Iterable[Mapping[str, Any]], seed: int = 0) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args:
-        print("usage: python -m advsim_ros.stacks.learned.table2 CAMPAIGN_OUTDIR...", file=sys.stderr)
+        print("usage: python -m advsim_ros.campaign.table2 CAMPAIGN_OUTDIR...", file=sys.stderr)
         return 2
     print(table2_markdown([row for folder in args for row in journal_rows(Path(folder) / "campaign.jsonl")]), end="")
     return 0
