@@ -85,6 +85,7 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
                 "journal_file": str(journal),
                 "reruns": options.reruns,
                 "rerun_top": options.rerun_top,
+                "perturbation_readers": 2,  # the perturber and this process's monitor (per lane)
                 options.algorithm: {"max_queries": options.queries},
             }
         }

@@ -43,6 +43,8 @@ from advsim_ros.core.types import Perturbation, ScenarioError
 from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode, run_node
 from advsim_ros.ros.params import declare_config
 
+_READER_POLL = 0.02  # how often the first query re-checks its readers [s]
+
 
 class _Lane:
     """Another evaluation lane's graph, joined from this process: its own context on its own ROS domain."""
@@ -178,11 +180,29 @@ class SearchNode(GraphNode):
                 )
         return True
 
+    def _readers_matched(self) -> bool:
+        """Wait until every lane's perturbation topic has its readers: a reader matched later (the attack's
+        monitor, whose process starts first but discovers this one last) would get only the latest query."""
+        nodes = [self, *(lane.node for lane in self._lanes)]
+        report_at = time.monotonic() + 10.0
+        while not all(node.matched_readers(topics.PERTURBATION) >= self.config.perturbation_readers for node in nodes):
+            if self._stop.wait(_READER_POLL):
+                return False
+            if time.monotonic() >= report_at:
+                report_at += 10.0
+                counts = [node.matched_readers(topics.PERTURBATION) for node in nodes]
+                self.get_logger().info(
+                    f"waiting for {self.config.perturbation_readers} readers of the perturbations per lane: {counts}"
+                )
+        return True
+
     def _run(self) -> None:
         if not self._wait(lambda: self._selection is not None, None):
             return
         selection = self._selection
         if not self._lanes_ready(selection):
+            return
+        if not self._readers_matched():
             return
         algorithm = make_search(
             self.config.algorithm, selection.dimension, np.random.default_rng(self.config.seed), self.algorithm_config

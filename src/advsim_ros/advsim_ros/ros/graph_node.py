@@ -44,15 +44,22 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         self.run_id = int(self.declare_parameter(RUN_ID_PARAMETER, 0).value)
         self.trace = Trace(name)
         self._foreign_runs: set[tuple[str, int]] = set()
+        self._publishers_by_topic: dict[str, Any] = {}
 
     def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Callable[[Any], None]:
         """A publish function taking a typestore message object or ready CDR bytes."""
         publisher = self.create_publisher(message_class(topic.msgtype), topic.name, profile(qos or topic.offered))
+        self._publishers_by_topic[topic.name] = publisher
 
         def publish(value: Any) -> None:
             publisher.publish(value if isinstance(value, bytes) else codec.encode(value))
 
         return publish
+
+    def matched_readers(self, topic: TopicSpec) -> int:
+        """Subscriptions matched with this node's publisher of ``topic`` (made by ``publisher``)."""
+        count: int = self._publishers_by_topic[topic.name].get_subscription_count()
+        return count
 
     def latch(self, topic: TopicSpec, value: Any) -> Any:
         """Publish one message on a latched (transient-local) topic; the publisher is returned to keep it alive."""

@@ -43,10 +43,15 @@ class DriverConfig:
     reruns: int = 2  # evaluations of each best query after the search (reproducibility check)
     rerun_top: int = 1  # how many of the best queries are re-run
     lane_domains: tuple[int, ...] = ()  # ROS domains of the further evaluation lanes (advsim attack --lanes)
+    # The first query waits until this many readers of /advsim/perturbation are matched in every lane: a
+    # latched topic gives a late reader only the last query (advsim attack: 2, the perturber and its monitor).
+    perturbation_readers: int = 1
 
     def __post_init__(self) -> None:
         if self.reruns < 0 or self.rerun_top < 0:
             raise ScenarioError(f"search reruns and rerun_top must be >= 0, got {self.reruns}, {self.rerun_top}")
+        if self.perturbation_readers < 0:
+            raise ScenarioError(f"search perturbation_readers: must be >= 0, got {self.perturbation_readers}")
         if not self.score_timeout > 0.0:
             raise ScenarioError(f"search score_timeout: must be positive, got {self.score_timeout}")
 
