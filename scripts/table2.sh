@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
-# AdvSim's Table 2 at this project's scale, in one command: the learned stack attacked on synthetic
-# logs of the training seeds (params/campaign_table2_train.yaml), fine-tuned on its hardest training
-# windows (curriculum) and on the adversarial scenarios that campaign found (robust training), then
-# the standard, curriculum and robust stacks attacked side by side on held-out test seeds
-# (params/campaign_table2.yaml).
+# AdvSim's Table 2 at this project's scale, in one command:
+#   1. Table 2's standard learned stack trained from scratch on the training split: the training
+#      seeds' street logs and their logs of the interaction families (params/stack_learned_table2.yaml);
+#   2. that stack attacked on the training seeds' logs (params/campaign_table2_train.yaml), every
+#      attack's best scenario exported as training samples;
+#   3. fine-tuned on its hardest training windows (curriculum) and on those found scenarios (robust);
+#   4. the standard, curriculum, robust and reference stacks attacked side by side on held-out test
+#      seeds, every failure replayed on the other stacks (params/campaign_table2.yaml), and the table.
 #   scripts/table2.sh [OUT]      e.g. scripts/table2.sh out/table2    (WORKERS=2 for two attacks at once)
 # Only train-split scenarios are trained on and only test-split ones evaluated (docs/stacks.md;
 # tests/stacks/test_table2_split.py). Campaigns resume from their journals, so a stopped run can be
@@ -13,23 +16,27 @@ out=${1:-out/table2}
 workers=${WORKERS:-1}
 advsim=.venv/bin/advsim
 mkdir -p "$out"
-"$advsim" campaign params/campaign_table2_train.yaml -o "$out/train_campaign" --workers "$workers"
-"$advsim" export training "$out/train_campaign/suite" -o "$out/data"
-"$advsim" train-il --scheme curriculum -o "$out/il_planner_curriculum.pt" > "$out/training_curriculum.json"
-"$advsim" train-il --scheme robust --adversarial "$out/data" -o "$out/il_planner_robust.pt" > "$out/training_robust.json"
-for scheme in curriculum robust; do
-  weights=$(realpath "$out/il_planner_$scheme.pt")
-  printf '/**:\n  ros__parameters:\n    planner:\n      weights: "%s"\n' "$weights" > "$out/stack_learned_$scheme.yaml"
-done
-sed -e "s#CURRICULUM_PARAMS#$(realpath "$out/stack_learned_curriculum.yaml")#" \
-    -e "s#ROBUST_PARAMS#$(realpath "$out/stack_learned_robust.yaml")#" \
-    params/campaign_table2.yaml > "$out/campaign.yaml"
-# The standard and robust stacks first, scene by scene (the comparison Table 2 is about), then the
-# curriculum stack on the same scenes: a run stopped early has whole pairs, and the same n for both.
-grep -v "name: learned_curriculum" "$out/campaign.yaml" > "$out/campaign_robust.yaml"
-grep -v -e "^  - learned$" -e "name: learned_robust" "$out/campaign.yaml" > "$out/campaign_curriculum.yaml"
-"$advsim" campaign "$out/campaign_robust.yaml" -o "$out/eval" --workers "$workers"
-mkdir -p "$out/eval_curriculum" && cp -rn "$out/eval/logs" "$out/eval_curriculum/"  # the same logs, not regenerated
-"$advsim" campaign "$out/campaign_curriculum.yaml" -o "$out/eval_curriculum" --workers "$workers"
-.venv/bin/python -m advsim_ros.campaign.table2 "$out/eval" "$out/eval_curriculum" | tee "$out/table2.md"
-echo "table2: $out/table2.md (each stack original vs adversarial, paired differences); reports in $out/eval*/report.md"
+stack_params() {  # Table 2's training parameters and the weights of one scheme, for train-il and the stack node
+  { cat params/stack_learned_table2.yaml; printf '    planner:\n      weights: "%s"\n' "$(realpath "$out/il_planner_$1.pt")"; } \
+    > "$out/stack_learned_$1.yaml"
+}
+if [[ ! -f "$out/il_planner_standard.pt" ]]; then
+  "$advsim" train-il --params params/stack_learned_table2.yaml -o "$out/il_planner_standard.pt" > "$out/training_standard.json"
+fi
+stack_params standard
+fill() { sed -e "s#STANDARD_PARAMS#$(realpath "$out/stack_learned_standard.yaml")#" \
+             -e "s#CURRICULUM_PARAMS#$(realpath "$out/stack_learned_curriculum.yaml")#" \
+             -e "s#ROBUST_PARAMS#$(realpath "$out/stack_learned_robust.yaml")#" "$1"; }
+fill params/campaign_table2_train.yaml > "$out/campaign_train.yaml"
+"$advsim" campaign "$out/campaign_train.yaml" -o "$out/train_campaign" --workers "$workers"
+"$advsim" export training "$out/train_campaign/suite" -o "$out/data" --params "$out/stack_learned_standard.yaml"
+"$advsim" train-il --scheme curriculum --params "$out/stack_learned_standard.yaml" -o "$out/il_planner_curriculum.pt" \
+  > "$out/training_curriculum.json"
+"$advsim" train-il --scheme robust --adversarial "$out/data" --params "$out/stack_learned_standard.yaml" \
+  -o "$out/il_planner_robust.pt" > "$out/training_robust.json"
+stack_params curriculum
+stack_params robust
+fill params/campaign_table2.yaml > "$out/campaign.yaml"
+"$advsim" campaign "$out/campaign.yaml" -o "$out/eval" --workers "$workers"
+.venv/bin/python -m advsim_ros.campaign.table2 "$out/eval" | tee "$out/table2.md"
+echo "table2: $out/table2.md (each stack original vs adversarial, paired differences); generalisation: $out/eval/report.md (transfer)"

@@ -16,7 +16,14 @@ from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig, ModelConfig, TrainingConfig
 from advsim_ros.stacks.learned.dataset import hardest_windows, window_split
 from advsim_ros.stacks.learned.stack import load_model
-from advsim_ros.stacks.learned.train import samples_from_scenario, train_il, train_planner, validation_loss
+from advsim_ros.stacks.learned.train import (
+    samples_from_scenario,
+    train_il,
+    train_planner,
+    training_scenarios,
+    validation_data,
+    validation_loss,
+)
 
 CONFIG = LearnedStackConfig()  # synthetic seeds 100-103 train, 104-105 validate, everything else tests
 CURATION = CurationConfig()
@@ -82,14 +89,24 @@ def test_curriculum_never_takes_a_kitti_window_beyond_the_training_frames(kitti_
 
 def test_curriculum_training_fine_tunes_on_the_hard_windows_bit_for_bit(tmp_path: Path) -> None:
     tiny = {"synthetic_seeds": (100,), "synthetic_duration": 6.2, "validation_seeds": (104,), "finetune_epochs": 2,
-            "finetune_repeat": 2, "curriculum_fraction": 1.0}  # fmt: skip
+            "finetune_repeat": 2, "curriculum_fraction": 1.0,
+            "finetune_families": ("street", "lead_brake")}  # fmt: skip
     small = dataclasses.replace(CONFIG, training=dataclasses.replace(CONFIG.training, **tiny))
     first = train_il(small, None, tmp_path / "a.pt", scheme="curriculum")
     second = train_il(small, None, tmp_path / "b.pt", scheme="curriculum")
-    (window,) = curate_windows(_log(100, duration=6.2), CURATION)  # a 62-frame log has one window
-    assert window.collision_rate > 0
-    assert first.hard_windows == {"synthetic_100@0": window.collision_rate}
-    assert first.sources == {"synthetic_100": 3, "synthetic_100@0/hard": 2}  # the log's samples + 2 repeats
+    # candidates: the street log standard training reads (6.2 s: one window) and the training seed's
+    # lead_brake log at the campaigns' length (8 s: two windows); every one with a curation signal is kept
+    expected = {
+        f"{scenario.scenario_id}@{window.start_frame}": window.collision_rate
+        for scenario in (_log(100, duration=6.2), _log(100, "lead_brake"))
+        for window in curate_windows(scenario, CURATION)
+        if window.collision_rate > 0
+    }
+    assert any(name.startswith("synthetic_lead_brake_100@") for name in expected)
+    ranked = dict(sorted(expected.items(), key=lambda item: -item[1]))  # hardest first, ties in candidate order
+    assert first.hard_windows == ranked
+    assert list(first.hard_windows) == list(ranked)
+    assert first.sources == {"synthetic_100": 3} | {f"{name}/hard": 2 for name in expected}  # the log + 2 repeats
     assert len(first.validation_losses) == first.epochs + 1
     assert first.best_epoch == 1 + int(np.argmin(first.validation_losses[1:]))
     tuned, metadata = load_model(small, tmp_path / "a.pt")
@@ -104,6 +121,38 @@ def test_curriculum_training_fine_tunes_on_the_hard_windows_bit_for_bit(tmp_path
     standard, _ = load_model(small)  # the packaged standard weights it started from
     pairs = zip(tuned.state_dict().values(), standard.state_dict().values(), strict=True)
     assert any(not torch.equal(a, b) for a, b in pairs)
+
+
+def test_fine_tuning_validates_on_every_finetune_family_of_the_validation_seeds() -> None:
+    training = dataclasses.replace(
+        CONFIG.training, validation_seeds=(104,), synthetic_duration=6.2, finetune_families=("street", "cut_in")
+    )
+    data = validation_data(dataclasses.replace(CONFIG, training=training))
+    assert data is not None
+    counts = {log_id: sum(source.startswith(f"{log_id}@") for source in data.sources)
+              for log_id in ("synthetic_104", "synthetic_cut_in_104")}  # fmt: skip
+    assert counts == {"synthetic_104": 3, "synthetic_cut_in_104": 21}  # 6.2-s street, 8-s cut_in: frames 9..(n-51)
+    assert data.count == sum(counts.values())
+    with pytest.raises(ValueError, match="finetune_families: unknown \\['bogus'\\]"):
+        TrainingConfig(finetune_families=("street", "bogus"))
+
+
+def test_standard_training_reads_the_training_seeds_logs_of_every_family_it_names() -> None:
+    training = dataclasses.replace(
+        CONFIG.training, synthetic_seeds=(100, 101), synthetic_duration=6.2, families=("street", "cut_in")
+    )
+    logs = training_scenarios(dataclasses.replace(CONFIG, training=training), None)
+    assert [scenario.scenario_id for scenario, _ in logs] == [
+        "synthetic_100", "synthetic_101", "synthetic_cut_in_100", "synthetic_cut_in_101"
+    ]  # fmt: skip
+    assert [scenario.num_frames for scenario, _ in logs] == [62, 62, 80, 80]  # street 6.2 s, families as campaigns
+    attacked = _log(101, "cut_in")  # the very log a campaign attacks
+    assert all(np.array_equal(a.centers, b.centers) for a, b in zip(logs[3][0].actors, attacked.actors, strict=True))
+    assert [scenario.scenario_id for scenario, _ in training_scenarios(CONFIG, None)] == [
+        f"synthetic_{seed}" for seed in CONFIG.training.synthetic_seeds
+    ]  # the packaged weights' data: street logs only
+    with pytest.raises(ValueError, match="training families: name at least one"):
+        TrainingConfig(families=())
 
 
 SMALL = LearnedStackConfig(
@@ -135,6 +184,7 @@ def test_train_il_curriculum_errors_are_one_line(tmp_path: Path, capsys: pytest.
     params.write_text(
         "/learned_stack:\n  ros__parameters:\n"
         "    training:\n      synthetic_seeds: [100]\n      synthetic_duration: 5.0\n"
+        "      finetune_families: [street]\n"
     )  # a 5-s log has no 6-s curation window
     out = tmp_path / "il.pt"
     base = ["train-il", "-o", str(out), "--no-kitti", "--params", str(params), "--scheme", "curriculum"]

@@ -52,7 +52,9 @@ def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene
     def row(stack: str, scene: str, adversarial: float) -> dict[str, object]:
         return {"stack": stack, "scenario": scene, "window_start": 0, "status": "ok",
                 "original_collision_5s": 0.0, "adversarial_collision_5s": adversarial,
-                "original_l2_human_5s": 1.0, "adversarial_l2_human_5s": 2.0}  # fmt: skip
+                "original_l2_human_5s": 1.0, "adversarial_l2_human_5s": 2.0,
+                "original_lateral_acceleration": 0.5, "adversarial_lateral_acceleration": 1.5,
+                "original_jerk": 0.25, "adversarial_jerk": 0.75}  # fmt: skip
 
     rows = [row("learned", "a", 1.0), row("learned", "b", 1.0), row("learned", "c", 0.0),
             row("learned_robust", "a", 0.0), row("learned_robust", "b", 1.0)]  # fmt: skip
@@ -65,5 +67,19 @@ def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene
     assert paired_differences(read, "learned_robust", "adversarial_collision_5s") == [-1.0, 0.0]  # scene c unpaired
     table = table2_markdown(read).splitlines()
     assert table[2].startswith("| learned | 3 | 0.0 [0.0, 0.0] | 66.7")
+    assert "| 0.5 [0.5, 0.5] | 1.5 [1.5, 1.5] | 0.25 [0.25, 0.25] | 0.75 [0.75, 0.75] |" in table[2]
     assert table[3].startswith("| learned_robust | 2 |")
     assert table[3].endswith("pp (n=2) |")
+
+
+def test_table2_standard_stack_trains_on_the_families_its_training_campaign_attacks() -> None:
+    from advsim_ros.stacks.learned.config import load_learned_config
+
+    table2 = load_learned_config(PARAMS / "stack_learned_table2.yaml")
+    campaign = load_campaign(PARAMS / "campaign_table2_train.yaml")
+    attacked = {source.synthetic_family for source in campaign.scenarios}
+    assert attacked == set(table2.training.families) == set(table2.training.finetune_families)
+    assert {source.synthetic_seed for source in campaign.scenarios} == set(table2.training.synthetic_seeds)
+    assert "left_turn" not in attacked  # no route input: a left turn's target is not in what the stack sees
+    assert table2.model == CONFIG.model  # only the training data differs from the packaged stack's
+    assert table2.raster == CONFIG.raster

@@ -108,7 +108,7 @@ def test_robust_training_fine_tunes_on_logs_plus_found_scenarios_reproducibly(su
     adversarial = training_shards(tmp_path / "data")
     assert [part.sources[0].split("@")[0] for part in adversarial] == ["synthetic_100"]  # the held-out one stays out
     tiny = {"synthetic_seeds": (5,), "synthetic_duration": 6.2, "finetune_epochs": 1, "finetune_repeat": 2,
-            "validation_seeds": (6,)}  # fmt: skip
+            "validation_seeds": (6,), "finetune_families": ("street",)}  # fmt: skip
     small = dataclasses.replace(CONFIG, training=dataclasses.replace(CONFIG.training, **tiny))
     first = train_il(small, None, tmp_path / "robust_a.pt", scheme="robust", adversarial=adversarial)
     second = train_il(small, None, tmp_path / "robust_b.pt", scheme="robust", adversarial=adversarial)
@@ -148,7 +148,7 @@ def test_robust_training_validates_on_found_scenarios_of_the_validation_split_an
     params.write_text(
         "/learned_stack:\n  ros__parameters:\n    training:\n      synthetic_seeds: [5]\n"
         "      synthetic_duration: 6.2\n      finetune_epochs: 1\n      finetune_repeat: 2\n"
-        "      validation_seeds: [6]\n"
+        "      validation_seeds: [6]\n      finetune_families: [street]\n"
     )
     runs = {
         name: train_il_command(tmp_path / f"{name}.pt", None, params, None, lambda _: None, "robust", folders)

@@ -1,11 +1,13 @@
-"""Table 2 from campaign journals (`python -m advsim_ros.campaign.table2 OUT/eval OUT/eval_curriculum`).
+"""Table 2 from campaign journals (`python -m advsim_ros.campaign.table2 OUT/eval`).
 
-Per stack: the collision rate up to 5 s on the original and the adversarial scenes and L2 to the
-human at 5 s, with bootstrap 95 % intervals (the campaign report's), plus each fine-tuned stack's
-paired difference to the standard one on the scenes both were attacked on: with few scenes the
-two stacks' intervals overlap even when one of them is better on most scenes, and the paired
-difference is what says whether robust training helped. It reads the journal, not results.csv,
-so a campaign stopped early (scripts/table2.sh resumes it) is summarised too, its n as it stands.
+Per stack, on the original and the adversarial scenes: the collision rate up to 5 s, L2 to the
+human at 5 s and the plan's largest lateral acceleration and jerk (the paper's columns), with
+bootstrap 95 % intervals (the campaign report's), plus each other stack's paired difference to
+the standard one on the scenes both were attacked on: with few scenes the two stacks' intervals
+overlap even when one of them is better on most scenes, and the paired difference is what says
+whether robust training helped. It reads the journal, not results.csv, so a campaign stopped
+early (scripts/table2.sh resumes it) is summarised too, its n as it stands. Several campaign
+folders may be given; their rows are pooled.
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ METRICS = (
     ("adversarial_collision_5s", "adversarial collision ≤5 s [%]", True),
     ("original_l2_human_5s", "original L2 5 s [m]", False),
     ("adversarial_l2_human_5s", "adversarial L2 5 s [m]", False),
+    ("original_lateral_acceleration", "original lat. acc. [m/s²]", False),
+    ("adversarial_lateral_acceleration", "adversarial lat. acc. [m/s²]", False),
+    ("original_jerk", "original jerk [m/s³]", False),
+    ("adversarial_jerk", "adversarial jerk [m/s³]", False),
 )
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from advsim_ros.core.types import ScenarioError
+from advsim_ros.io.synthetic_families import FAMILY_NAMES
 from advsim_ros.stacks.interface import TopicIoConfig
 from advsim_ros.stacks.modular.config import GroundConfig
 from advsim_ros.stacks.params import default_params_file, load_stack_config
@@ -95,6 +96,9 @@ class TrainingConfig:
     kitti_last_decision: int = 59  # KITTI decision frames up to this one train; later ones are held out
     synthetic_seeds: tuple[int, ...] = (100, 101, 102, 103)  # synthetic logs generated for training
     synthetic_duration: float = 10.0  # length of each synthetic training log [s]
+    # scene families (io.synthetic_families) of the training seeds that standard training reads; the packaged
+    # weights read street logs only, Table 2's standard stack (scripts/table2.sh) also the interaction families
+    families: tuple[str, ...] = ("street",)
     mirror: bool = True  # add every sample mirrored left-right
     threads: int = 2  # torch intra-op threads (fixed, so that sums are reduced in the same order)
     validation_seeds: tuple[int, ...] = (104, 105)  # synthetic logs that validate fine-tuning (never trained on)
@@ -103,6 +107,10 @@ class TrainingConfig:
     finetune_repeat: int = 5  # curriculum / robust: each hard window or found scenario counts this many times
     finetune_patience: int = 3  # fine-tuning stops after this many passes without a better validation loss
     curriculum_fraction: float = 0.25  # curriculum: the hardest fraction of train windows (by curation rate)
+    # curriculum / robust: scene families (io.synthetic_families) of the training seeds whose windows curriculum
+    # ranks, and of the validation seeds that early stopping measures; standard training reads street logs only.
+    # Not left_turn: the stack has no route input, so nothing it sees says whether the human turns or goes on
+    finetune_families: tuple[str, ...] = ("street", "lead_brake", "cut_in", "crossing")
 
     def __post_init__(self) -> None:
         counts = (self.epochs, self.batch_size, self.threads, self.finetune_epochs, self.finetune_repeat,
@@ -120,6 +128,12 @@ class TrainingConfig:
             raise ScenarioError(f"training validation_seeds: {shared} also train (synthetic_seeds)")
         if not (self.learning_rate > 0 and self.weight_decay >= 0):
             raise ScenarioError("training learning_rate must be positive and weight_decay >= 0")
+        for key in ("families", "finetune_families"):
+            if unknown := [family for family in getattr(self, key) if family not in FAMILY_NAMES]:
+                expected = ", ".join(FAMILY_NAMES)
+                raise ScenarioError(f"training {key}: unknown {unknown}; expected some of {expected}")
+        if not self.families:
+            raise ScenarioError("training families: name at least one scene family (street: the original logs)")
         if not 0.5 <= self.synthetic_duration <= 60.0:
             raise ScenarioError(f"training synthetic_duration: must lie in [0.5, 60] s, got {self.synthetic_duration}")
 

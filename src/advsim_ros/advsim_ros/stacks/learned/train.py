@@ -93,20 +93,38 @@ def samples_from_scenario(
     return TrainingData(np.stack(images), np.stack(features), np.stack(priors), np.stack(targets), tuple(sources))
 
 
-def _synthetic_street(seed: int, duration: float) -> Scenario:
-    from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
+def _synthetic_log(seed: int, duration: float | None, family: str = "street") -> Scenario:
+    from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log, synthetic_name
 
-    config = SyntheticConfig(duration=duration)
-    return generate_synthetic_log(np.random.default_rng(seed), config, f"synthetic_{seed}").scenario
+    config = SyntheticConfig(family=family) if duration is None else SyntheticConfig(duration=duration, family=family)
+    return generate_synthetic_log(np.random.default_rng(seed), config, synthetic_name(family, seed)).scenario
+
+
+def family_logs(
+    config: LearnedStackConfig, seeds: Sequence[int], families: Sequence[str] | None = None
+) -> list[Scenario]:
+    """The synthetic logs of ``families`` (default ``training.finetune_families``) for each seed.
+
+    Street logs are ``training.synthetic_duration`` long, as standard training reads them; the other families
+    have the length campaigns give them (SyntheticConfig's), so that training reads the very logs the
+    campaigns of scripts/table2.sh attack.
+    """
+    training = config.training
+    return [
+        _synthetic_log(seed, training.synthetic_duration if family == "street" else None, family)
+        for family in (training.finetune_families if families is None else families)
+        for seed in seeds
+    ]
 
 
 def training_scenarios(
     config: LearnedStackConfig, kitti_root: Path | None
 ) -> list[tuple[Scenario, Callable[[int], bool] | None]]:
-    """The logs trained on: synthetic logs from the configured seeds, and KITTI up to the last training decision."""
+    """The logs trained on: synthetic logs of ``training.families`` from the training seeds, and KITTI up to the
+    last training decision."""
     training = config.training
     scenarios: list[tuple[Scenario, Callable[[int], bool] | None]] = [
-        (_synthetic_street(seed, training.synthetic_duration), None) for seed in training.synthetic_seeds
+        (scenario, None) for scenario in family_logs(config, training.synthetic_seeds, training.families)
     ]
     if kitti_root is not None:
         from advsim_ros.io.kitti import load_kitti_tracking
@@ -117,13 +135,12 @@ def training_scenarios(
 
 
 def validation_data(config: LearnedStackConfig, log: Callable[[str], None] | None = None) -> TrainingData | None:
-    """Every sample of the validation logs (``training.validation_seeds``); None when there are none."""
-    training = config.training
+    """Every sample of the validation logs (``training.finetune_families`` of ``training.validation_seeds``)."""
     parts = []
-    for seed in training.validation_seeds:
-        part = samples_from_scenario(_synthetic_street(seed, training.synthetic_duration), config)
+    for scenario in family_logs(config, config.training.validation_seeds):
+        part = samples_from_scenario(scenario, config)
         if log is not None:
-            log(f"synthetic_{seed}: {part.count} validation samples")
+            log(f"{scenario.scenario_id}: {part.count} validation samples")
         parts.append(part)
     return TrainingData.concatenate(parts) if parts else None
 
@@ -347,7 +364,10 @@ def train_il(
         if scheme == "curriculum":
             from advsim_ros.stacks.learned.dataset import hardest_windows
 
-            windows = hardest_windows([scenario for scenario, _ in scenarios], config, curation or CurationConfig())
+            training = config.training
+            unread = [family for family in training.finetune_families if family not in training.families]
+            candidates = [scenario for scenario, _ in scenarios] + family_logs(config, training.synthetic_seeds, unread)
+            windows = hardest_windows(candidates, config, curation or CurationConfig())
             hard = {window.name: window.window.collision_rate for window in windows}
             if log is not None:
                 log("hardest train windows (curation rate): " + ", ".join(f"{k} {v:.3f}" for k, v in hard.items()))
