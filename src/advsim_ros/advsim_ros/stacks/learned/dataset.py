@@ -17,10 +17,11 @@ against a stack that trained on other windows of the same log.
 - synthetic logs are split by their seed, whatever their scene family: those of the training
   seeds (``training.synthetic_seeds``) train, those of the validation seeds
   (``training.validation_seeds``, disjoint from them) validate: fine-tuning stops early on their
-  loss and never trains on them; every other seed is test. Standard training reads only the
-  street logs of the training seeds; the scene families of those seeds are there for robust
-  training's found scenarios (params/campaign_table2_train.yaml), so a test scene (another seed)
-  is never a log any training or attack for training saw;
+  loss and never trains on them; every other seed is test. Standard training reads the training
+  seeds' logs of ``training.families`` (the packaged weights: street only; Table 2's standard
+  stack also the interaction families), and robust training's campaign attacks those seeds only
+  (params/campaign_table2_train.yaml), so a test scene (another seed) is never a log any training
+  or attack for training saw;
 - the KITTI training sequence trains on windows inside the frames training saw (decisions up
   to ``training.kitti_last_decision`` and their horizons), tests on windows wholly after them,
   and windows straddling the boundary are excluded (they would leak training targets);
@@ -48,6 +49,7 @@ from advsim_ros.core.atomic import atomic_file, write_json_atomically
 from advsim_ros.core.curation import CurationConfig, CurationWindow, crop_scenario, curate_windows
 from advsim_ros.core.types import Scenario
 from advsim_ros.io.bag import read_scenario_bag
+from advsim_ros.io.synthetic_families import FAMILY_NAMES
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
 from advsim_ros.stacks.learned.train import TrainingData, samples_from_scenario
@@ -65,8 +67,6 @@ def source_window(scenario_id: str) -> tuple[str, int]:
 
 def synthetic_seed(log_id: str) -> int | None:
     """The seed of a synthetic log id (``synthetic_SEED`` or ``synthetic_FAMILY_SEED``, io.synthetic.synthetic_name)."""
-    from advsim_ros.io.synthetic_families import FAMILY_NAMES
-
     found = re.fullmatch(r"synthetic_(?:([a-z_]+)_)?(\d+)", log_id)
     if found is None or (found.group(1) is not None and found.group(1) not in FAMILY_NAMES):
         return None

@@ -93,13 +93,6 @@ def samples_from_scenario(
     return TrainingData(np.stack(images), np.stack(features), np.stack(priors), np.stack(targets), tuple(sources))
 
 
-def _synthetic_log(seed: int, duration: float | None, family: str = "street") -> Scenario:
-    from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log, synthetic_name
-
-    config = SyntheticConfig(family=family) if duration is None else SyntheticConfig(duration=duration, family=family)
-    return generate_synthetic_log(np.random.default_rng(seed), config, synthetic_name(family, seed)).scenario
-
-
 def family_logs(
     config: LearnedStackConfig, seeds: Sequence[int], families: Sequence[str] | None = None
 ) -> list[Scenario]:
@@ -109,12 +102,17 @@ def family_logs(
     have the length campaigns give them (SyntheticConfig's), so that training reads the very logs the
     campaigns of scripts/table2.sh attack.
     """
-    training = config.training
-    return [
-        _synthetic_log(seed, training.synthetic_duration if family == "street" else None, family)
-        for family in (training.finetune_families if families is None else families)
-        for seed in seeds
-    ]
+    from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log, synthetic_name
+
+    logs = []
+    for family in config.training.finetune_families if families is None else families:
+        synthetic = SyntheticConfig(family=family)
+        if family == "street":
+            synthetic = replace(synthetic, duration=config.training.synthetic_duration)
+        for seed in seeds:
+            name = synthetic_name(family, seed)
+            logs.append(generate_synthetic_log(np.random.default_rng(seed), synthetic, name).scenario)
+    return logs
 
 
 def training_scenarios(
