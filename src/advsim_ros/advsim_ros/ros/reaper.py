@@ -38,12 +38,32 @@ def _stat(pid: int) -> list[bytes] | None:
         return None
 
 
+def _still_exiting(pid: int) -> bool:
+    """A zombie leader whose other threads have not finished exiting: they still hold its files.
+
+    A killed multi-threaded process (every DDS node) shows its leader as a zombie while the other
+    threads are still tearing down; its shared-memory locks go only when the last one has gone.
+    """
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return False
+    for task in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{task}/stat", "rb") as stream:
+                if stream.read().rsplit(b")", 1)[1].split()[0] not in (b"Z", b"X"):
+                    return True
+        except OSError:
+            continue
+    return False
+
+
 def group_members(groups: set[int]) -> list[int]:
-    """Pids of live processes whose process group is one of ``groups`` (from /proc)."""
+    """Pids of processes whose process group is one of ``groups`` and that have not fully exited (from /proc)."""
     members = []
     for entry in os.listdir("/proc"):
         fields = _stat(int(entry)) if entry.isdigit() else None
-        if fields is not None and int(fields[2]) in groups and fields[0] != b"Z":
+        if fields is not None and int(fields[2]) in groups and (fields[0] != b"Z" or _still_exiting(int(entry))):
             members.append(int(entry))
     return members
 
