@@ -22,10 +22,11 @@ ConfigT = TypeVar("ConfigT")
 SHARED_FILES = ("bag.yaml", "drivable.yaml")  # parameter files every node gets (their entries are under /**)
 
 
-def _merge(into: dict[str, Any], values: Mapping[str, Any]) -> None:
+def merge_parameters(into: dict[str, Any], values: Mapping[str, Any]) -> None:
+    """Nested parameters of ``values`` into ``into``, key by key (a nested mapping adds to, not replaces, its own)."""
     for key, value in values.items():
         if isinstance(value, Mapping) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
+            merge_parameters(into[key], value)
         else:
             into[key] = copy.deepcopy(value)
 
@@ -55,7 +56,7 @@ def node_parameters(files: Sequence[Path], node: str, overrides: Mapping[str, An
         for key in ("/**", "**", f"/{node}", node):
             entry = document.get(key)
             if isinstance(entry, Mapping) and isinstance(entry.get("ros__parameters"), Mapping):
-                _merge(merged, entry["ros__parameters"])
+                merge_parameters(merged, entry["ros__parameters"])
     return merged
 
 

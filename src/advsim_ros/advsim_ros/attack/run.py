@@ -29,6 +29,7 @@ import yaml
 
 from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackOptions
+from advsim_ros.attack.params import merge_parameters
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
@@ -102,8 +103,9 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
             wait_for_every_plan=False,
         )
     for node, values in options.parameter_overrides.items():
+        # nested: the user's search.bo.initial_points must not drop bo.max_queries set from --queries above
         entry = overrides.setdefault(f"/{node}", {"ros__parameters": {}})["ros__parameters"]
-        entry.update(json.loads(json.dumps(values)))
+        merge_parameters(entry, json.loads(json.dumps(values)))
     return overrides
 
 
