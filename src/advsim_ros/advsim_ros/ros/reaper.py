@@ -29,10 +29,11 @@ _SETTLE_POLL = 0.02  # [s]
 _GIVE_UP_AFTER = 30.0  # a process stuck in uninterruptible sleep is reported, not waited for forever [s]
 
 
-def _stat(pid: int) -> list[bytes] | None:
-    """The fields of /proc/PID/stat after the command name (state first), None when it is gone."""
+def _stat(pid: int, task: str = "") -> list[bytes] | None:
+    """The fields of /proc/PID/stat (of thread ``task`` when given) after the command name (state first), None when
+    it is gone."""
     try:
-        with open(f"/proc/{pid}/stat", "rb") as stream:
+        with open(f"/proc/{pid}/task/{task}/stat" if task else f"/proc/{pid}/stat", "rb") as stream:
             return stream.read().rsplit(b")", 1)[1].split()
     except OSError:
         return None
@@ -48,14 +49,7 @@ def _still_exiting(pid: int) -> bool:
         tasks = os.listdir(f"/proc/{pid}/task")
     except OSError:
         return False
-    for task in tasks:
-        try:
-            with open(f"/proc/{pid}/task/{task}/stat", "rb") as stream:
-                if stream.read().rsplit(b")", 1)[1].split()[0] not in (b"Z", b"X"):
-                    return True
-        except OSError:
-            continue
-    return False
+    return any(fields is not None and fields[0] not in (b"Z", b"X") for fields in (_stat(pid, t) for t in tasks))
 
 
 def group_members(groups: set[int]) -> list[int]:
