@@ -180,3 +180,16 @@ def test_the_failure_rule() -> None:
         {"collision_5s": 0.0, "adversarial_loss": 11}
     )
     assert not FailureRule().failed(None)
+
+
+def test_a_bo_budget_its_initial_design_fills_gets_a_note_once(bag: Path, tmp_path: Path) -> None:
+    from advsim_ros.campaign.schedule import campaign_search_notes
+
+    def notes(values: dict[str, object]) -> list[str]:
+        campaign = load_campaign(_write(tmp_path, {**_good(bag), "stacks": ["reference", "learned"], **values}))
+        return campaign_search_notes(expand(campaign), tmp_path / "out", tmp_path)
+
+    (note,) = notes({"algorithms": {"bo": 20, "ga": 500}})  # 2 windows x 2 stacks x 2 actors x 2 objectives: once
+    assert note.startswith("algorithms {bo: 20}: the initial design of 20 uniform queries takes the whole budget")
+    assert notes({"algorithms": {"bo": 20}, "parameters": {"search": {"bo": {"initial_points": 8}}}}) == []
+    assert notes({"algorithms": {"bo": 75}}) == []

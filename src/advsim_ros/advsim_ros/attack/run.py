@@ -29,10 +29,11 @@ import yaml
 
 from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackOptions
-from advsim_ros.attack.params import merge_parameters
+from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
+from advsim_ros.core.search.registry import config_from_params
 from advsim_ros.ros.launcher import (
     Launcher,
     NodeSpec,
@@ -62,6 +63,16 @@ class AttackResult:
     def best_adversarial_loss(self) -> float | None:
         best = self.summary.get("best")
         return None if best is None else float(best["score"]["adversarial_loss"])
+
+
+def search_notes(options: AttackOptions) -> tuple[str, ...]:
+    """What the attack's search settings (params/search.yaml, its budget, the user's overrides) warn about."""
+    if options.replay_only:
+        return ()
+    overrides = _base_overrides(options, options.out_dir / JOURNAL_NAME)
+    search = node_parameters(node_files(options.params, "search"), "search", overrides)
+    context = f"/search {options.algorithm}"
+    return config_from_params(options.algorithm, search.get(options.algorithm, {}), context).notes()
 
 
 def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:

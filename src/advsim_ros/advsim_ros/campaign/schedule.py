@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from advsim_ros.attack.run import search_notes
 from advsim_ros.campaign.config import AttackPlan, Campaign, expand, load_campaign, materialize
 from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
@@ -143,14 +144,28 @@ def _attack_memory() -> int:
     return max(int(largest), 1)
 
 
+def campaign_search_notes(plans: list[AttackPlan], out_dir: Path, config_dir: Path) -> list[str]:
+    """What the search settings of these attacks warn about (search_notes), once per algorithm and budget."""
+    budgets = {(plan.algorithm, plan.budget): plan for plan in plans}
+    return [
+        f"algorithms {{{plan.algorithm}: {plan.budget}}}: {text}"
+        for plan in budgets.values()
+        for text in search_notes(plan.options(out_dir, config_dir))
+    ]
+
+
 def run_campaign(
     config: Path,
     out_dir: Path,
     workers: int = 1,
     address: str | None = None,
     progress: Callable[[dict[str, Any]], None] | None = None,
+    note: Callable[[str], None] | None = None,
 ) -> CampaignJournal:
-    """Run (or resume) every job of the campaign; returns its journal. A bad config starts nothing."""
+    """Run (or resume) every job of the campaign; returns its journal. A bad config starts nothing.
+
+    ``note`` gets what the search settings warn about (search_notes), once per algorithm and budget.
+    """
     campaign = load_campaign(config)
     if workers < 1:
         raise ValueError(f"--workers: must be at least 1, got {workers}")
@@ -159,6 +174,9 @@ def run_campaign(
         CampaignJournal.open(out_dir, campaign.digest, campaign.path)
     campaign = materialize(campaign, out_dir / "logs")
     plans = expand(campaign)  # every window checked against its log
+    if note is not None:
+        for text in campaign_search_notes(plans, out_dir, campaign.path.parent):
+            note(text)
     journal = CampaignJournal.open(out_dir, campaign.digest, campaign.path)
     todo = [_attack_job(p, out_dir, campaign.path.parent) for p in plans if f"attack/{p.key}" not in journal]
     for entry in journal.of_kind("attack"):

@@ -14,7 +14,7 @@ import yaml
 from tqdm import tqdm
 
 from advsim_ros.adapters.profile import load_profile
-from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack
+from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack, search_notes
 from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
@@ -227,6 +227,9 @@ def _run_attack(args: argparse.Namespace) -> int:
 def _attack_and_report(options: AttackOptions) -> int:
     progress = _progress_printer(options.queries + 1 + options.reruns * options.rerun_top)
     try:
+        for note in search_notes(options):
+            where = f"--algo {options.algorithm} --queries {options.queries}"
+            print(f"advsim attack: note: {where}: {note}", file=sys.stderr)
         result = run_attack(options, progress)
     except AttackError as error:
         raise CommandError(str(error)) from error

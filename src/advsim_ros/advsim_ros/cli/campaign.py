@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -56,13 +57,17 @@ def _progress() -> Any:
     return update
 
 
+def _note(text: str) -> None:
+    print(f"advsim campaign: note: {text}", file=sys.stderr)
+
+
 def _run_campaign(args: argparse.Namespace) -> int:
     from advsim_ros.campaign.outputs import write_campaign_outputs
     from advsim_ros.campaign.schedule import run_campaign
 
     progress = _progress()
     try:
-        journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress)
+        journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress, _note)
     finally:
         progress.close()
     written = write_campaign_outputs(args.config, args.out, journal)

@@ -48,6 +48,10 @@ class SearchConfig:
     def __post_init__(self) -> None:
         require_config(self.max_queries >= 1, type(self).__name__, "max_queries", "must be at least 1")
 
+    def notes(self) -> tuple[str, ...]:
+        """What a user should know before running with these settings (valid, but maybe not what was meant)."""
+        return ()
+
 
 @dataclass(frozen=True, eq=False)
 class BestPoint:

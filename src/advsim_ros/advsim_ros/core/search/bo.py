@@ -92,6 +92,18 @@ class BoConfig(SearchConfig):
         require_config(self.batch_size >= 1, name, "batch_size", "must be at least 1")
         require_config(self.mc_samples >= 1, name, "mc_samples", "must be at least 1")
 
+    def notes(self) -> tuple[str, ...]:
+        if self.initial_points < self.max_queries:
+            return ()
+        # the GP is only fitted after the initial design: a budget it fills is random search, whatever the name
+        fewer = max(2, self.max_queries * 2 // 5)
+        return (
+            f"the initial design of {self.initial_points} uniform queries takes the whole budget of "
+            f"{self.max_queries}: no GP-UCB query runs (this is random search); for BO proper set "
+            f"search.bo.initial_points below it, e.g. {fewer} (advsim attack --param search.bo.initial_points={fewer}; "
+            f"a campaign's parameters: {{search: {{bo: {{initial_points: {fewer}}}}}}})",
+        )
+
 
 @contextmanager
 def _torch_threads(count: int) -> Iterator[None]:
