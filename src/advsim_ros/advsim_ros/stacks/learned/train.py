@@ -188,7 +188,8 @@ def validation_loss(model: BevPlanner, data: TrainingData, batch_size: int) -> f
     total = 0.0
     was_training = model.training
     model.eval()
-    with torch.no_grad():
+    # training's kernels (no oneDNN, _reproducible_torch): a loss measured here equals the one training measured
+    with torch.no_grad(), torch.backends.mkldnn.flags(enabled=False):
         for start in range(0, data.count, batch_size):
             batch = slice(start, start + batch_size)
             planned = model(torch.from_numpy(data.images[batch]).float(), torch.from_numpy(data.features[batch]),
