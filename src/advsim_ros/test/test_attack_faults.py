@@ -1,4 +1,4 @@
-"""Faults, for real: kill -9 of `advsim attack`, a full disk, a stray graph on the same ROS domain, a non-deterministic
+"""Faults, for real: kill -9 of `advsim attack`, a suspended one (SIGSTOP), a full disk, a stray graph on the same
 stack, a stack that never connects, SIGINT and SIGTERM, and bad input that must start nothing.
 
 Every test runs `advsim attack` as a user would (a process of its own) on a 6 s KITTI 0000 window
@@ -269,6 +269,35 @@ def test_a_stray_graph_on_the_same_ros_domain_changes_nothing_in_the_attack(
     assert orchestrator.returncode == 0, errors
     logs = "".join(path.read_text() for path in (out / "run" / "logs").glob("*.log"))
     assert "ignoring /advsim/perturbation messages of run 0x67932" in logs  # the stray run id, seen and ignored
+    assert _measured(json.loads((out / "summary.json").read_text())) == _measured(reference)
+
+
+@pytest.mark.slow
+def test_an_attack_suspended_while_its_graph_searches_on_journals_every_query_when_it_continues(
+    kitti_window_bag: Path, tmp_path: Path, uninterrupted: tuple[str, dict[str, Any]]
+) -> None:
+    """SIGSTOP (what Ctrl-Z sends; a starved process is the milder case) stops the orchestrator and its monitor,
+    not the graph: the search runs to its end meanwhile, and on SIGCONT the monitor must still get every query."""
+    stack, reference = uninterrupted
+    out = tmp_path / "suspended"
+    player_log = out / "run" / "logs" / "graph_nodes.log"
+    last_query = QUERIES + 2  # the second re-run of the best
+    orchestrator = subprocess.Popen(_attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert wait_for(lambda: len(_journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
+        assert orchestrator.poll() is None, "the attack ended before it could be suspended"
+        orchestrator.send_signal(signal.SIGSTOP)
+        ran_ahead = wait_for(lambda: last_query in _started(player_log, 0), timeout=120)
+        journaled_while_suspended = len(_journaled(out))
+        orchestrator.send_signal(signal.SIGCONT)
+        _, errors = orchestrator.communicate(timeout=120)
+    finally:
+        orchestrator.kill()  # only if the test failed: it has exited otherwise
+    assert ran_ahead, "the graph did not replay the last query while the orchestrator was suspended"
+    assert journaled_while_suspended < last_query + 1  # so the monitor really missed queries as they happened
+    assert orchestrator.returncode == 0, errors
+    assert _journaled(out) == list(range(last_query + 1))  # every query exactly once
     assert _measured(json.loads((out / "summary.json").read_text())) == _measured(reference)
 
 

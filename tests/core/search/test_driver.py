@@ -30,8 +30,9 @@ def _drive(
     small_config: SmallConfig,
     lanes: int,
     recorded: dict[int, QueryRecord] | None = None,
-) -> tuple[list[Perturbation], list[int]]:
-    """Run a whole search; returns every evaluated query in order and the size of each evaluated batch."""
+) -> tuple[list[Perturbation], list[int], int]:
+    """Run a whole search; returns every evaluated query in order, the size of each evaluated batch and how
+    many queries the driver says the search made."""
     algorithm = make_search(name, DIMENSION, np.random.default_rng(5), small_config(name, 24))
     evaluated: list[Perturbation] = []
     batches: list[int] = []
@@ -42,8 +43,9 @@ def _drive(
         evaluated.extend(perturbations)
         return [_objective(p.delta) for p in perturbations]
 
-    drive_search(algorithm, evaluate, "window", ACTORS, DriverConfig(), recorded or {}, lambda: False, lanes=lanes)
-    return evaluated, batches
+    config = DriverConfig()
+    made = drive_search(algorithm, evaluate, "window", ACTORS, config, recorded or {}, lambda: False, lanes=lanes)
+    return evaluated, batches, made
 
 
 def _key(perturbation: Perturbation) -> tuple[object, ...]:
@@ -52,8 +54,8 @@ def _key(perturbation: Perturbation) -> tuple[object, ...]:
 
 @pytest.mark.parametrize("name", ["bo", "ga", "nes", "random", "rs", "bandit"])
 def test_every_number_of_lanes_asks_the_same_queries_under_the_same_ids(name: str, small_config: SmallConfig) -> None:
-    one, one_batches = _drive(name, small_config, lanes=1)
-    three, three_batches = _drive(name, small_config, lanes=3)
+    one, one_batches, _ = _drive(name, small_config, lanes=1)
+    three, three_batches, _ = _drive(name, small_config, lanes=3)
     assert [_key(p) for p in one] == [_key(p) for p in three]
     assert set(one_batches) == {1}
     # the original alone, the search in the algorithm's whole batches, then the two re-runs together
@@ -66,7 +68,8 @@ def test_every_number_of_lanes_asks_the_same_queries_under_the_same_ids(name: st
 
 
 def test_a_resumed_search_evaluates_only_what_the_journal_lacks_even_inside_a_batch(small_config: SmallConfig) -> None:
-    full, _ = _drive("random", small_config, lanes=3)
+    full, _, made = _drive("random", small_config, lanes=3)
+    assert made == len(full)
     recorded = {
         p.query_id: QueryRecord(
             p.query_id, p.algorithm, p.actor_ids, tuple(p.delta.tolist()), {"status": "ok", "adversarial_loss": v}
@@ -74,8 +77,9 @@ def test_a_resumed_search_evaluates_only_what_the_journal_lacks_even_inside_a_ba
         for p in full[:3]  # the original and two queries: the first batch of four was cut after two
         for v in [_objective(p.delta)]
     }
-    resumed, batches = _drive("random", small_config, lanes=3, recorded=recorded)
+    resumed, batches, made_resumed = _drive("random", small_config, lanes=3, recorded=recorded)
     assert [_key(p) for p in resumed] == [_key(p) for p in full[3:]]
+    assert made_resumed == len(full)  # the three answered from the journal count: the attack's whole size
     assert batches[0] == 2  # the rest of the interrupted batch of four
 
 

@@ -107,7 +107,10 @@ def follow(
             _check_processes(options, lane, connected_once, crashes)
         if options.replay_only and len(journal.records) >= options.replay_runs:
             break
-        if first.monitor.search_finished and not options.replay_only and all(lane.monitor.idle() for lane in lanes):
+        # over when the journal holds every query the search made: the status may overtake pieces of the last
+        # queries that the writers are still re-sending to a monitor that fell behind (a starved or suspended process)
+        searched = first.monitor.search_finished and len(journal) >= first.monitor.search_queries
+        if searched and not options.replay_only and all(lane.monitor.idle() for lane in lanes):
             break
         now = time.monotonic()
         if connected_once and not graph_written:  # node names come after the endpoints: wait for them
@@ -128,8 +131,10 @@ def follow(
                 )
         limit = options.startup_timeout if len(journal) == 0 else options.query_timeout
         if now - last_change > limit:
+            lacking = "; ".join(text for text in (lane.monitor.missing() for lane in lanes) if text)
             raise AttackError(
-                f"no query finished for {limit:.0f} s ({len(journal)} journaled); logs in {first.launcher.log_dir}"
+                f"no query finished for {limit:.0f} s ({len(journal)} journaled"
+                f"{f'; still missing: {lacking}' if lacking else ''}); logs in {first.launcher.log_dir}"
             )
     if not graph_written:
         _write_stack_graph(options, first.monitor, final=True)

@@ -214,7 +214,7 @@ def episode_from_msg(episode: Any) -> EpisodeRecord:
 
 @dataclass(frozen=True)
 class SearchStatusRecord:
-    queries_asked: int  # perturbations asked for so far (journal replays included)
+    queries_asked: int  # perturbations sent so far; once finished, all the search's queries (journal replays included)
     finished: bool  # no further perturbation will come
 
 

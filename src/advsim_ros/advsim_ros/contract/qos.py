@@ -42,7 +42,9 @@ STREAM = QosSpec(Reliability.RELIABLE, Durability.VOLATILE, 10)
 TF = QosSpec(Reliability.RELIABLE, Durability.VOLATILE, 100)
 # State published once per query or per run; late joiners (a restarted stack, a recorder) still get it.
 LATCHED = QosSpec(Reliability.RELIABLE, Durability.TRANSIENT_LOCAL, 1)
-# Episode phases and scores: a late joiner gets the recent history, not only the last message.
-HISTORY = QosSpec(Reliability.RELIABLE, Durability.TRANSIENT_LOCAL, 100)
+# What happens to each query (its perturbation, perturbed tracks, episode phases and score): the writers
+# keep a whole attack's worth, so a reader that stalls for a while (the attack's monitor in a starved or
+# suspended process) is sent what it missed instead of losing queries; a late joiner gets the history.
+HISTORY = QosSpec(Reliability.RELIABLE, Durability.TRANSIENT_LOCAL, 5000)
 # /clock as ROS publishes it.
 CLOCK = QosSpec(Reliability.RELIABLE, Durability.VOLATILE, 1)

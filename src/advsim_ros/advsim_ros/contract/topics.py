@@ -39,8 +39,8 @@ PREDICTIONS = TopicSpec("/prediction/tracks", names.ACTOR_TRACK_ARRAY, qos.STREA
 
 # The attack protocol (internal to the graph; every message carries the run id)
 ACTOR_SELECTION = TopicSpec("/advsim/actor_selection", names.ACTOR_SELECTION, qos.LATCHED)
-PERTURBATION = TopicSpec("/advsim/perturbation", names.PERTURBATION, qos.LATCHED)
-PERTURBED_TRACKS = TopicSpec("/advsim/perturbed_tracks", names.ACTOR_TRACK_ARRAY, qos.LATCHED)
+PERTURBATION = TopicSpec("/advsim/perturbation", names.PERTURBATION, qos.HISTORY)
+PERTURBED_TRACKS = TopicSpec("/advsim/perturbed_tracks", names.ACTOR_TRACK_ARRAY, qos.HISTORY)
 FRAME_REQUEST = TopicSpec("/advsim/frame_request", names.FRAME_REQUEST, qos.STREAM)
 RENDERED = TopicSpec("/advsim/rendered_points", names.POINTCLOUD2, qos.STREAM)  # lidar_resim's answers, to the player
 EPISODE = TopicSpec("/advsim/episode", names.EPISODE, qos.HISTORY)

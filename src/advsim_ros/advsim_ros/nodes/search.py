@@ -214,13 +214,14 @@ class SearchNode(GraphNode):
             f"actors {list(selection.actor_ids)}, {len(recorded)} finished queries in the journal, "
             f"{1 + len(self._lanes)} evaluation lane(s)"
         )
-        drive_search(
+        made = drive_search(
             algorithm, self._evaluate, selection.scenario_id, selection.actor_ids, self.config, recorded,
             self._stop.is_set, lanes=1 + len(self._lanes),
         )  # fmt: skip
         if not self._stop.is_set():
-            self.get_logger().info("search finished")
-            self.publish_status(search_status_msg(SearchStatusRecord(self._asked, finished=True), self.run_id))
+            self.get_logger().info(f"search finished: {made} queries")
+            # the whole count, journal replays included: the monitor ends the attack when it has journaled them all
+            self.publish_status(search_status_msg(SearchStatusRecord(made, finished=True), self.run_id))
 
 
 def main() -> None:

@@ -97,6 +97,7 @@ class AttackMonitor:
         self.selection: SelectionRecord | None = None
         self.progress = Progress()
         self.search_finished = False
+        self.search_queries = 0  # once the search finished: how many queries it made in all
         self._pending: dict[int, _Pending] = {}
 
     def __enter__(self) -> AttackMonitor:
@@ -152,7 +153,8 @@ class AttackMonitor:
             self._entry(episode.query_id).episode = episode
 
     def _on_search_status(self, message: Any) -> None:
-        self.search_finished = search_status_from_msg(message).finished
+        status = search_status_from_msg(message)
+        self.search_finished, self.search_queries = status.finished, status.queries_asked
 
     def _on_tracks(self, message: Any) -> None:
         record = track_array_from_msg(message)
@@ -164,6 +166,19 @@ class AttackMonitor:
     def idle(self) -> bool:
         """No query asked for is still unfinished (nothing pending)."""
         return not any(entry.perturbation is not None for entry in self._pending.values())
+
+    def missing(self) -> str:
+        """What the unfinished queries still lack, e.g. 'query 21: episode DONE' ('' when none is waiting)."""
+        lacking = []
+        for query_id, entry in sorted(self._pending.items()):
+            pieces = {"perturbation": entry.perturbation, "score": entry.score, "episode DONE": entry.episode}
+            pieces["perturbed tracks"] = entry.tracks
+            absent = [name for name, piece in pieces.items() if piece is None]
+            if entry.score is not None and entry.score.status == Status.INFEASIBLE:
+                absent = [name for name in absent if name == "perturbation"]
+            if absent:
+                lacking.append(f"query {query_id}: {', '.join(absent)}")
+        return "; ".join(lacking)
 
     def take_finished(self) -> list[FinishedQuery]:
         """Queries whose every piece arrived since the last call, in query order."""

@@ -61,8 +61,10 @@ class _Recorded:
 
     def __init__(self, evaluate: EvaluateBatch, recorded: Mapping[int, QueryRecord], log: logging.Logger) -> None:
         self._evaluate, self._recorded, self._log = evaluate, recorded, log
+        self.queries = 0  # evaluated or answered from the journal
 
     def __call__(self, perturbations: Sequence[Perturbation]) -> list[float]:
+        self.queries += len(perturbations)
         values: dict[int, float] = {}
         for perturbation in perturbations:
             record = self._recorded.get(perturbation.query_id)
@@ -94,10 +96,11 @@ def drive_search(
     stopped: Callable[[], bool],
     log: logging.Logger | None = None,
     lanes: int = 1,
-) -> None:
+) -> int:
     """Run the whole search (see the module docstring); returns early when ``stopped()``.
 
-    ``evaluate`` gets one query at a time when ``lanes`` is 1, else whole batches.
+    ``evaluate`` gets one query at a time when ``lanes`` is 1, else whole batches. Returns how many
+    queries the search made, those answered from the journal included.
     """
     if lanes < 1:
         raise ScenarioError(f"search lanes: must be at least 1, got {lanes}")
@@ -121,7 +124,8 @@ def drive_search(
     step = 1 if lanes == 1 else max(1, len(reruns))
     for start in range(0, len(reruns), step):  # the best last: its replay is recorded
         if stopped():
-            return
+            return run.queries
         chunk = reruns[start : start + step]
         run([Perturbation(query_id + i, scenario_id, actor_ids, points[best], RERUN) for i, best in enumerate(chunk)])
         query_id += len(chunk)
+    return run.queries
