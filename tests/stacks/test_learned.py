@@ -130,6 +130,21 @@ def test_training_gives_the_same_weights_in_every_process() -> None:
     assert len(digests) == 1, digests
 
 
+def test_training_and_its_validation_loss_run_no_onednn_kernel(synthetic_log: SyntheticLog) -> None:
+    # the race above is rare in a test's few processes; the kernels that ran are not: none of oneDNN's
+    from torch.profiler import ProfilerActivity, profile
+
+    from advsim_ros.stacks.learned.train import validation_loss
+
+    data = samples_from_scenario(synthetic_log.scenario, SMALL, keep=lambda frame: frame % 4 == 1)
+    with profile(activities=[ProfilerActivity.CPU]) as profiled:
+        model = train_planner(data, SMALL).model
+        validation_loss(model, data, SMALL.training.batch_size)
+    kernels = {event.name for event in profiled.events()}
+    assert "aten::convolution_backward" in kernels  # the profile saw the training
+    assert not [name for name in kernels if "mkldnn" in name or "onednn" in name]
+
+
 def test_training_is_reproducible_and_the_saved_weights_drive_the_stack(
     synthetic_log: SyntheticLog, tmp_path: Path
 ) -> None:
