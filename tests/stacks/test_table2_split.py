@@ -72,6 +72,31 @@ def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene
     assert table[3].endswith("pp (n=2) |")
 
 
+def test_table2_counts_collided_scenes_per_scene_family() -> None:
+    from advsim_ros.campaign.config import scene_family, synthetic_source_name
+    from advsim_ros.campaign.table2 import family_markdown
+
+    assert scene_family(synthetic_source_name("lead_brake", 3)) == "lead_brake"
+    assert scene_family(synthetic_source_name("street", 101)) == "street"
+    assert scene_family("kitti_0000") == "kitti_0000"  # a bag is its own family
+
+    def row(stack: str, scene: str, original: float, adversarial: float) -> dict[str, object]:
+        return {"stack": stack, "scenario": scene, "original_collision_5s": original,
+                "adversarial_collision_5s": adversarial}  # fmt: skip
+
+    rows = [row("learned", "synthetic_lead_brake_seed0", 1.0, 1.0),
+            row("learned", "synthetic_lead_brake_seed1", 0.0, 1.0),
+            row("learned", "synthetic_cut_in_seed0", 0.0, float("nan")),
+            row("learned_robust", "synthetic_lead_brake_seed0", 1.0, 0.0),
+            row("learned_robust", "synthetic_cut_in_seed0", 0.0, 1.0)]  # fmt: skip
+    assert family_markdown(rows).splitlines() == [
+        "| family | learned | learned_robust |",
+        "| --- | --- | --- |",
+        "| cut_in | 0 / 0 of 1 | 1 / 0 of 1 |",
+        "| lead_brake | 2 / 1 of 2 | 0 / 1 of 1 |",
+    ]
+
+
 def test_table2_standard_stack_trains_on_the_families_its_training_campaign_attacks() -> None:
     from advsim_ros.stacks.learned.config import load_learned_config
 

@@ -262,11 +262,22 @@ def _synthetic_sources(path: Path, where: str, synthetic: Any, windows: Any) -> 
         if family not in FAMILY_NAMES:
             choices = ", ".join(FAMILY_NAMES)
             raise _fail(path, f"{where}.synthetic.families", f"unknown family {family!r} (one of {choices})")
-    return [
-        ScenarioSource(f"synthetic_seed{s}" if f == "street" else f"synthetic_{f}_seed{s}", Path(), windows, s, f)
-        for f in families
-        for s in seeds
-    ]
+    return [ScenarioSource(synthetic_source_name(f, s), Path(), windows, s, f) for f in families for s in seeds]
+
+
+def synthetic_source_name(family: str, seed: int) -> str:
+    """A synthetic log's name in a campaign (its scenario column): synthetic_seedN, synthetic_FAMILY_seedN."""
+    return f"synthetic_seed{seed}" if family == "street" else f"synthetic_{family}_seed{seed}"
+
+
+def scene_family(name: str) -> str:
+    """The scene family of a campaign's scenario name (synthetic_source_name); other logs are their own family."""
+    from advsim_ros.io.synthetic_families import FAMILY_NAMES
+
+    found = re.fullmatch(r"synthetic_(?:([a-z_]+)_)?seed\d+", name)
+    if found is None or (found.group(1) is not None and found.group(1) not in FAMILY_NAMES):
+        return name
+    return found.group(1) or "street"
 
 
 def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:

@@ -7,7 +7,8 @@ the standard one on the scenes both were attacked on: with few scenes the two st
 overlap even when one of them is better on most scenes, and the paired difference is what says
 whether robust training helped. It reads the journal, not results.csv, so a campaign stopped
 early (scripts/table2.sh resumes it) is summarised too, its n as it stands. Several campaign
-folders may be given; their rows are pooled.
+folders may be given; their rows are pooled. A second table counts the scenes that collided per scene
+family: where robust training helped, and where it did not.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from advsim_ros.campaign.config import scene_family
 from advsim_ros.campaign.report import GROUP_METRICS, TABLE1_METRICS, _float, bootstrap_mean, cell
 
 STANDARD = "learned"
@@ -71,12 +73,36 @@ def table2_markdown(rows: Iterable[Mapping[str, Any]], seed: int = 0) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _collided(value: Any) -> bool:
+    return _float(value) > 0.0  # NaN (not measured) is not a collision
+
+
+def family_markdown(rows: Iterable[Mapping[str, Any]]) -> str:
+    """Per scene family and stack: scenes whose adversarial / original scenario collided within 5 s, of n."""
+    rows = list(rows)
+    stacks = sorted({str(row["stack"]) for row in rows}, key=lambda name: (name != STANDARD, name))
+    families = sorted({scene_family(str(row["scenario"])) for row in rows})
+    lines = ["| family | " + " | ".join(stacks) + " |", "|" + " --- |" * (len(stacks) + 1)]
+    for family in families:
+        cells = []
+        for stack in stacks:
+            own = [row for row in rows if row["stack"] == stack and scene_family(str(row["scenario"])) == family]
+            adversarial = sum(_collided(row["adversarial_collision_5s"]) for row in own)
+            original = sum(_collided(row["original_collision_5s"]) for row in own)
+            cells.append(f"{adversarial} / {original} of {len(own)}")
+        lines.append(f"| {family} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args:
         print("usage: python -m advsim_ros.campaign.table2 CAMPAIGN_OUTDIR...", file=sys.stderr)
         return 2
-    print(table2_markdown([row for folder in args for row in journal_rows(Path(folder) / "campaign.jsonl")]), end="")
+    rows = [row for folder in args for row in journal_rows(Path(folder) / "campaign.jsonl")]
+    print(table2_markdown(rows))
+    print("Scenes that collided within 5 s per scene family, adversarial / original of n:\n")
+    print(family_markdown(rows), end="")
     return 0
 
 
