@@ -8,6 +8,8 @@
 #   4. the standard, curriculum, robust and reference stacks attacked side by side on held-out test
 #      seeds, every failure replayed on the other stacks (params/campaign_table2.yaml), and the table.
 #   scripts/table2.sh [OUT]      e.g. scripts/table2.sh out/table2    (WORKERS=2 for two attacks at once)
+# TRAINING_SEED=N trains every stack with training.seed N (another draw of the same training); one OUT per seed,
+# then `python -m advsim_ros.campaign.table2 OUT_A/eval OUT_B/eval` pools them, each pairing within its own run.
 # Only train-split scenarios are trained on and only test-split ones evaluated (docs/stacks.md;
 # tests/stacks/test_table2_split.py). Campaigns resume from their journals, so a stopped run can be
 # started again with the same OUT. Run from the repository root.
@@ -16,12 +18,25 @@ out=${1:-out/table2}
 workers=${WORKERS:-1}
 advsim=.venv/bin/advsim
 mkdir -p "$out"
+training="$out/stack_learned_table2.yaml"  # params/stack_learned_table2.yaml, with the training seed if one is given
+if [[ -n "${TRAINING_SEED:-}" ]]; then
+  [[ "$TRAINING_SEED" =~ ^[0-9]+$ ]] || { echo "table2: TRAINING_SEED must be a whole number, got '$TRAINING_SEED'" >&2; exit 2; }
+  { cat params/stack_learned_table2.yaml; printf '      seed: %s\n' "$TRAINING_SEED"; } > "$training.tmp"
+else
+  cp params/stack_learned_table2.yaml "$training.tmp"
+fi
+if [[ -f "$training" ]] && ! cmp -s "$training" "$training.tmp"; then
+  rm -f "$training.tmp"
+  echo "table2: $out was trained with other parameters ($training); give another OUT" >&2
+  exit 2
+fi
+mv "$training.tmp" "$training"
 stack_params() {  # Table 2's training parameters and the weights of one scheme, for train-il and the stack node
-  { cat params/stack_learned_table2.yaml; printf '    planner:\n      weights: "%s"\n' "$(realpath "$out/il_planner_$1.pt")"; } \
+  { cat "$training"; printf '    planner:\n      weights: "%s"\n' "$(realpath "$out/il_planner_$1.pt")"; } \
     > "$out/stack_learned_$1.yaml"
 }
 if [[ ! -f "$out/il_planner_standard.pt" ]]; then
-  "$advsim" train-il --params params/stack_learned_table2.yaml -o "$out/il_planner_standard.pt" > "$out/training_standard.json"
+  "$advsim" train-il --params "$training" -o "$out/il_planner_standard.pt" > "$out/training_standard.json"
 fi
 stack_params standard
 fill() { sed -e "s#STANDARD_PARAMS#$(realpath "$out/stack_learned_standard.yaml")#" \

@@ -70,6 +70,14 @@ def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene
     assert "| 0.5 [0.5, 0.5] | 1.5 [1.5, 1.5] | 0.25 [0.25, 0.25] | 0.75 [0.75, 0.75] |" in table[2]
     assert table[3].startswith("| learned_robust | 2 |")
     assert table[3].endswith("pp (n=2) |")
+    # another training seed's run of the same scenes: pooled, each robust stack paired with its own standard one
+    other = tmp_path / "seed1"
+    other.mkdir()
+    seed1 = [row("learned", "a", 0.0), row("learned_robust", "a", 1.0)]
+    (other / "campaign.jsonl").write_text("".join(json.dumps({"job": f"attack/{i}", "row": r}) + "\n"
+                                                  for i, r in enumerate(seed1)))  # fmt: skip
+    pooled = read + journal_rows(other / "campaign.jsonl")
+    assert paired_differences(pooled, "learned_robust", "adversarial_collision_5s") == [-1.0, 0.0, 1.0]
 
 
 def test_table2_counts_collided_scenes_per_scene_family() -> None:
@@ -108,3 +116,16 @@ def test_table2_standard_stack_trains_on_the_families_its_training_campaign_atta
     assert "left_turn" not in attacked  # no route input: a left turn's target is not in what the stack sees
     assert table2.model == CONFIG.model  # only the training data differs from the packaged stack's
     assert table2.raster == CONFIG.raster
+
+
+def test_a_training_seed_appended_as_scripts_table2_does_reaches_the_training(tmp_path: Path) -> None:
+    from advsim_ros.stacks.learned.config import load_learned_config
+
+    script = (PARAMS.parent / "scripts" / "table2.sh").read_text()
+    # the seed is appended under training:, the file's last section
+    assert "printf '      seed: %s\\n' \"$TRAINING_SEED\"" in script
+    seeded = tmp_path / "stack_learned_table2.yaml"
+    seeded.write_text((PARAMS / "stack_learned_table2.yaml").read_text() + "      seed: 7\n")
+    config = load_learned_config(seeded)
+    assert config.training.seed == 7
+    assert config.training.families == load_learned_config(PARAMS / "stack_learned_table2.yaml").training.families

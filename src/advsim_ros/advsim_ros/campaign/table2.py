@@ -7,8 +7,9 @@ the standard one on the scenes both were attacked on: with few scenes the two st
 overlap even when one of them is better on most scenes, and the paired difference is what says
 whether robust training helped. It reads the journal, not results.csv, so a campaign stopped
 early (scripts/table2.sh resumes it) is summarised too, its n as it stands. Several campaign
-folders may be given; their rows are pooled. A second table counts the scenes that collided per scene
-family: where robust training helped, and where it did not.
+folders may be given (one per training seed: `TRAINING_SEED=N scripts/table2.sh`); their rows are
+pooled and each stack is paired with the standard stack of its own campaign. A second table counts
+the scenes that collided per scene family: where robust training helped, and where it did not.
 """
 
 from __future__ import annotations
@@ -34,18 +35,19 @@ METRICS: tuple[tuple[str, str, bool], ...] = tuple(
 
 
 def journal_rows(journal: Path) -> list[dict[str, Any]]:
-    """The finished attacks' rows of a campaign journal (OUTDIR/campaign.jsonl)."""
+    """The finished attacks' rows of a campaign journal (OUTDIR/campaign.jsonl), each with its ``campaign`` folder."""
     rows = []
     for line in journal.read_text(encoding="utf-8").splitlines():
         entry = json.loads(line)
         row = entry.get("row") if isinstance(entry, dict) else None
         if str(entry.get("job", "")).startswith("attack/") and isinstance(row, dict) and row.get("status") == "ok":
-            rows.append(row)
+            rows.append({**row, "campaign": str(journal.parent)})
     return rows
 
 
-def _scene(row: Mapping[str, Any]) -> tuple[str, int]:
-    return str(row["scenario"]), int(row["window_start"])
+def _scene(row: Mapping[str, Any]) -> tuple[str, str, int]:
+    # pooled campaigns (another training seed's run) attack the same scenes with other stacks: pairs stay in theirs
+    return str(row.get("campaign", "")), str(row["scenario"]), int(row["window_start"])
 
 
 def paired_differences(rows: Sequence[Mapping[str, Any]], stack: str, metric: str) -> list[float]:
