@@ -17,10 +17,13 @@ set -euo pipefail
 out=${1:-out/table2}
 workers=${WORKERS:-1}
 advsim=.venv/bin/advsim
+if [[ -n "${TRAINING_SEED:-}" && ! "$TRAINING_SEED" =~ ^[0-9]+$ ]]; then
+  echo "table2: TRAINING_SEED must be a whole number, got '$TRAINING_SEED'" >&2
+  exit 2
+fi
 mkdir -p "$out"
 training="$out/stack_learned_table2.yaml"  # params/stack_learned_table2.yaml, with the training seed if one is given
 if [[ -n "${TRAINING_SEED:-}" ]]; then
-  [[ "$TRAINING_SEED" =~ ^[0-9]+$ ]] || { echo "table2: TRAINING_SEED must be a whole number, got '$TRAINING_SEED'" >&2; exit 2; }
   { cat params/stack_learned_table2.yaml; printf '      seed: %s\n' "$TRAINING_SEED"; } > "$training.tmp"
 else
   cp params/stack_learned_table2.yaml "$training.tmp"
