@@ -6,7 +6,8 @@
 #      attack's best scenario exported as training samples;
 #   3. fine-tuned on its hardest training windows (curriculum) and on those found scenarios (robust);
 #   4. the standard, curriculum, robust and reference stacks attacked side by side on held-out test
-#      seeds, every failure replayed on the other stacks (params/campaign_table2.yaml), and the table.
+#      seeds, every failure replayed on the other stacks (params/campaign_table2.yaml), then on the
+#      Argoverse 2 logs with simulated LiDAR (params/campaign_table2_av2.yaml), and the table.
 #   scripts/table2.sh [OUT]      e.g. scripts/table2.sh out/table2    (WORKERS=2 for two attacks at once)
 # TRAINING_SEED=N trains every stack with training.seed N (another draw of the same training); one OUT per seed,
 # then `python -m advsim_ros.campaign.table2 OUT_A/eval OUT_B/eval` pools them, each pairing within its own run.
@@ -48,13 +49,34 @@ fill() { sed -e "s#STANDARD_PARAMS#$(realpath "$out/stack_learned_standard.yaml"
 fill params/campaign_table2_train.yaml > "$out/campaign_train.yaml"
 "$advsim" campaign "$out/campaign_train.yaml" -o "$out/train_campaign" --workers "$workers"
 "$advsim" export training "$out/train_campaign/suite" -o "$out/data" --params "$out/stack_learned_standard.yaml"
-"$advsim" train-il --scheme curriculum --params "$out/stack_learned_standard.yaml" -o "$out/il_planner_curriculum.pt" \
-  > "$out/training_curriculum.json"
-"$advsim" train-il --scheme robust --adversarial "$out/data" --params "$out/stack_learned_standard.yaml" \
-  -o "$out/il_planner_robust.pt" > "$out/training_robust.json"
+if [[ ! -f "$out/il_planner_curriculum.pt" ]]; then  # weights are written whole (renamed into place) or not at all
+  "$advsim" train-il --scheme curriculum --params "$out/stack_learned_standard.yaml" -o "$out/il_planner_curriculum.pt" \
+    > "$out/training_curriculum.json"
+fi
+if [[ ! -f "$out/il_planner_robust.pt" ]]; then
+  "$advsim" train-il --scheme robust --adversarial "$out/data" --params "$out/stack_learned_standard.yaml" \
+    -o "$out/il_planner_robust.pt" > "$out/training_robust.json"
+fi
 stack_params curriculum
 stack_params robust
 fill params/campaign_table2.yaml > "$out/campaign.yaml"
 "$advsim" campaign "$out/campaign.yaml" -o "$out/eval" --workers "$workers"
-.venv/bin/python -m advsim_ros.campaign.table2 "$out/eval" | tee "$out/table2.md"
-echo "table2: $out/table2.md (each stack original vs adversarial, paired differences); generalisation: $out/eval/report.md (transfer)"
+evals=("$out/eval")
+# Real traffic: the Argoverse 2 logs of the shared data with a simulated LiDAR sweep every frame (test split)
+av2_logs=(../shared/data/av2/*-*-*-*-*/)
+if [[ -d "${av2_logs[0]}" ]]; then
+  mkdir -p "$out/av2"
+  for log in "${av2_logs[@]}"; do
+    id=$(basename "$log")
+    bag="$out/av2/av2_${id%%-*}"
+    [[ -d "$bag" ]] || "$advsim" convert av2 "$log" --lidar simulate -o "$bag"
+  done
+  fill params/campaign_table2_av2.yaml > "$out/campaign_av2.yaml"  # beside av2/: its bags are relative to it
+  "$advsim" campaign "$out/campaign_av2.yaml" -o "$out/eval_av2" --workers "$workers"
+  evals+=("$out/eval_av2")
+else
+  echo "table2: no Argoverse 2 logs in ../shared/data/av2: the table has the synthetic test scenes only" >&2
+fi
+.venv/bin/python -m advsim_ros.campaign.table2 "${evals[@]}" | tee "$out/table2.md"
+echo "table2: $out/table2.md (each stack original vs adversarial, paired differences, per scene family);" \
+  "generalisation: $out/eval/report.md and $out/eval_av2/report.md (Table 3, transfer)"

@@ -129,3 +129,16 @@ def test_a_training_seed_appended_as_scripts_table2_does_reaches_the_training(tm
     config = load_learned_config(seeded)
     assert config.training.seed == 7
     assert config.training.families == load_learned_config(PARAMS / "stack_learned_table2.yaml").training.families
+
+
+def test_the_table2_evaluation_on_av2_logs_attacks_as_the_synthetic_one_does_on_test_split_logs() -> None:
+    import yaml
+
+    synthetic = yaml.safe_load((PARAMS / "campaign_table2.yaml").read_text())
+    av2 = yaml.safe_load((PARAMS / "campaign_table2_av2.yaml").read_text())
+    assert av2["scenarios"] == [{"bags": "av2", "windows": "curated"}]  # scripts/table2.sh converts the logs there
+    assert {key: value for key, value in av2.items() if key != "scenarios"} == {
+        key: value for key, value in synthetic.items() if key != "scenarios"
+    }
+    # the converter's scenario ids of AV2 logs are never a training or validation log
+    assert window_split("av2_7fab2350-7eaf-3b7e-a39d-6937a4c1bede", 0, 60, CONFIG) == "test"
