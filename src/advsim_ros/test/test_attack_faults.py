@@ -113,6 +113,8 @@ def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path, zombie_shm
     orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         assert wait_for(lambda: point() or orchestrator.poll() is not None, timeout=600)
+        # run/graph.json is written just before the first process starts: on a busy machine, wait for one
+        assert wait_for(lambda: bool(_children(orchestrator.pid)) or orchestrator.poll() is not None, timeout=60)
         assert orchestrator.poll() is None, "the attack ended before the kill point"
         graph = _children(orchestrator.pid)
         assert graph, "no process of the graph found"
