@@ -79,4 +79,4 @@ else
 fi
 .venv/bin/python -m advsim_ros.campaign.table2 "${evals[@]}" | tee "$out/table2.md"
 echo "table2: $out/table2.md (each stack original vs adversarial, paired differences, per scene family);" \
-  "generalisation: $out/eval/report.md and $out/eval_av2/report.md (Table 3, transfer)"
+  "generalisation: Table 3 (transfer) of report.md in ${evals[*]}"

@@ -60,10 +60,15 @@ class _Pending:
     episode: EpisodeRecord | None = None
     current_frame: int = 0
 
+    def lacking(self) -> list[str]:
+        """The pieces still to come; an infeasible query is never replayed, so it has no episode or tracks."""
+        pieces = {"perturbation": self.perturbation, "score": self.score}
+        if self.score is None or self.score.status != Status.INFEASIBLE:
+            pieces |= {"episode DONE": self.episode, "perturbed tracks": self.tracks}
+        return [name for name, piece in pieces.items() if piece is None]
+
     def finished(self) -> FinishedQuery | None:
-        if self.perturbation is None or self.score is None:
-            return None
-        if self.score.status != Status.INFEASIBLE and (self.episode is None or self.tracks is None):
+        if self.perturbation is None or self.score is None or self.lacking():
             return None
         return FinishedQuery(self.perturbation, self.score, self.tracks or (), self.episode)
 
@@ -169,16 +174,8 @@ class AttackMonitor:
 
     def missing(self) -> str:
         """What the unfinished queries still lack, e.g. 'query 21: episode DONE' ('' when none is waiting)."""
-        lacking = []
-        for query_id, entry in sorted(self._pending.items()):
-            pieces = {"perturbation": entry.perturbation, "score": entry.score, "episode DONE": entry.episode}
-            pieces["perturbed tracks"] = entry.tracks
-            absent = [name for name, piece in pieces.items() if piece is None]
-            if entry.score is not None and entry.score.status == Status.INFEASIBLE:
-                absent = [name for name in absent if name == "perturbation"]
-            if absent:
-                lacking.append(f"query {query_id}: {', '.join(absent)}")
-        return "; ".join(lacking)
+        lacking = ((query_id, entry.lacking()) for query_id, entry in sorted(self._pending.items()))
+        return "; ".join(f"query {query_id}: {', '.join(absent)}" for query_id, absent in lacking if absent)
 
     def take_finished(self) -> list[FinishedQuery]:
         """Queries whose every piece arrived since the last call, in query order."""
