@@ -1,13 +1,15 @@
-"""Fixtures for tests that start real ROS 2 processes talking over Fast DDS on loopback."""
+"""Fixtures for tests that start real ROS 2 processes talking over Fast DDS (shared memory, this machine only)."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,11 +23,14 @@ from advsim_ros.ros.launcher import Launcher, graph_environment, reserve_domain_
 
 PROCESSES = Path(__file__).resolve().parent / "processes"
 SIMPLE_STACK = PROCESSES / "simple_stack.py"
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # attack_runs: helpers the attack tests share
+
+from attack_runs import attack_argv  # noqa: E402 - importable once the line above ran
 
 
 @pytest.fixture
 def ros_graph(tmp_path: Path) -> Iterator[Launcher]:
-    """A launcher for one isolated graph: its own ROS_DOMAIN_ID, discovery on loopback only."""
+    """A launcher for one isolated graph: its own ROS_DOMAIN_ID, shared-memory transport only."""
     with (
         reserve_domain_id() as lease,
         Launcher(graph_environment(lease.domain_id), tmp_path / "logs", lease) as launcher,
@@ -127,3 +132,14 @@ def advsim() -> Callable[..., subprocess.CompletedProcess[str]]:
 def fast_parameters() -> dict[str, dict[str, int]]:
     """Parameter overrides that keep graph tests fast (small feasible sets; selection and projection are real)."""
     return {"perturber": {"num_candidates": 20_000}}
+
+
+@pytest.fixture(scope="session")
+def uninterrupted(kitti_window_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[str, dict[str, Any]]:
+    """The attack run once without disturbance: what every disturbed run must reproduce."""
+    base = tmp_path_factory.mktemp("uninterrupted")
+    stack = f"{sys.executable} {SIMPLE_STACK} --ros-args -p marker_dir:={base}"
+    result = subprocess.run(attack_argv(kitti_window_bag, base / "out", stack), capture_output=True, text=True,
+                            timeout=900, check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    return stack, json.loads((base / "out" / "summary.json").read_text())

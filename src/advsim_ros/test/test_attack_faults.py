@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import re
 import shutil
 import signal
 import subprocess
@@ -21,69 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from attack_runs import QUERIES, alive, attack_argv, children, journaled, measured, started
 
 from advsim_ros.ros.launcher import graph_environment, wait_for
 
 INTRUDER = Path(__file__).resolve().parent / "processes" / "intruder.py"
-QUERIES = 6  # searched queries; with the original and two re-runs of the best: 9 in all
-FAST = ("--param", "perturber.num_candidates=20000")
-
-
-def _attack_argv(bag: Path, out: Path, stack: str, *extra: str) -> list[str]:
-    return [
-        sys.executable, "-m", "advsim_ros.cli", "attack", str(bag), "--stack", stack, "--algo", "random",
-        "--queries", str(QUERIES), "--window-start", "0", "-o", str(out), *FAST, *extra,
-    ]  # fmt: skip
-
-
-def _journaled(out: Path) -> list[int]:
-    """Query ids of the complete lines of the journal."""
-    path = out / "queries.jsonl"
-    if not path.exists():
-        return []
-    ids = []
-    for line in path.read_text().splitlines()[1:]:
-        try:
-            record = json.loads(line)
-        except ValueError:
-            break
-        if "query_id" in record:
-            ids.append(int(record["query_id"]))
-    return ids
-
-
-def _started(log: Path, offset: int) -> set[int]:
-    """Queries the scenario player began to replay, in the part of its log after ``offset``."""
-    text = log.read_bytes()[offset:].decode(errors="replace") if log.exists() else ""
-    return {int(match) for match in re.findall(r"query (\d+): replay starts", text)}
-
-
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (the graph's nodes, the stack, the reaper)."""
-    found = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    """Running, not a zombie (the reaper of this container may not collect orphans)."""
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
-def _measured(summary: dict[str, Any]) -> list[tuple[Any, ...]]:
-    keys = ("status", "adversarial_loss", "input_digest", "plan_digest")
-    return [(q["query_id"], q["algorithm"], q["delta"], *(q["score"][k] for k in keys)) for q in summary["queries"]]
 
 
 def _timeless(entry: dict[str, Any]) -> dict[str, Any]:
@@ -92,40 +32,28 @@ def _timeless(entry: dict[str, Any]) -> dict[str, Any]:
     return {**entry, "score": score}
 
 
-@pytest.fixture(scope="module")
-def uninterrupted(kitti_window_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[str, dict[str, Any]]:
-    """The attack run once without disturbance: what every disturbed run must reproduce."""
-    base = tmp_path_factory.mktemp("uninterrupted")
-    stack = f"{sys.executable} {Path(__file__).resolve().parent / 'processes' / 'simple_stack.py'}"
-    stack += f" --ros-args -p marker_dir:={base}"
-    result = subprocess.run(_attack_argv(kitti_window_bag, base / "out", stack), capture_output=True, text=True,
-                            timeout=900, check=False)  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    return stack, json.loads((base / "out" / "summary.json").read_text())
-
-
 def _kill_9_at(argv: list[str], point: Callable[[], bool], out: Path, zombie_shm_segments: Callable[[], int]) -> None:
     """Run the attack, kill -9 it when ``point()`` holds, check that nothing of its graph is left within 5 s."""
     player_log = out / "run" / "logs" / "graph_nodes.log"
     zombie_shm_segments()  # what earlier tests left
-    journaled_before = set(_journaled(out))
+    journaled_before = set(journaled(out))
     offset = player_log.stat().st_size if player_log.exists() else 0
     orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         assert wait_for(lambda: point() or orchestrator.poll() is not None, timeout=600)
         # run/graph.json is written just before the first process starts: on a busy machine, wait for one
-        assert wait_for(lambda: bool(_children(orchestrator.pid)) or orchestrator.poll() is not None, timeout=60)
+        assert wait_for(lambda: bool(children(orchestrator.pid)) or orchestrator.poll() is not None, timeout=60)
         assert orchestrator.poll() is None, "the attack ended before the kill point"
-        graph = _children(orchestrator.pid)
+        graph = children(orchestrator.pid)
         assert graph, "no process of the graph found"
     finally:
         orchestrator.send_signal(signal.SIGKILL)
         orchestrator.wait()
-    assert wait_for(lambda: not any(_alive(pid) for pid in graph), timeout=5.0), [p for p in graph if _alive(p)]
+    assert wait_for(lambda: not any(alive(pid) for pid in graph), timeout=5.0), [p for p in graph if alive(p)]
     assert zombie_shm_segments() == 0  # nor its shared memory (32 MiB a process under /dev/shm)
     # a query the journal held before this run was never replayed again
-    assert _started(player_log, offset).isdisjoint(journaled_before)
-    ids = _journaled(out)
+    assert started(player_log, offset).isdisjoint(journaled_before)
+    ids = journaled(out)
     assert len(ids) == len(set(ids))
 
 
@@ -138,23 +66,23 @@ def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_r
 ) -> None:
     stack, reference = uninterrupted
     out = tmp_path / "killed"
-    argv = _attack_argv(kitti_window_bag, out, stack)
+    argv = attack_argv(kitti_window_bag, out, stack)
     player_log = out / "run" / "logs" / "graph_nodes.log"
     kill_points: list[Callable[[], bool]] = [
         lambda: (out / "run" / "graph.json").exists(),  # while the graph starts
-        lambda: len(_journaled(out)) >= 3,  # in the middle of the search
-        lambda: len(_journaled(out)) >= QUERIES + 2,  # during the re-runs of the best
+        lambda: len(journaled(out)) >= 3,  # in the middle of the search
+        lambda: len(journaled(out)) >= QUERIES + 2,  # during the re-runs of the best
     ]
     for point in kill_points:
         _kill_9_at(argv, point, out, zombie_shm_segments)
-    journaled_before = set(_journaled(out))
+    journaled_before = set(journaled(out))
     offset = player_log.stat().st_size
     final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
     assert final.returncode == 0, final.stderr
-    assert _started(player_log, offset).isdisjoint(journaled_before)
-    assert _journaled(out) == list(range(QUERIES + 3))  # every query exactly once
+    assert started(player_log, offset).isdisjoint(journaled_before)
+    assert journaled(out) == list(range(QUERIES + 3))  # every query exactly once
     summary = json.loads((out / "summary.json").read_text())
-    assert _measured(summary) == _measured(reference)  # as if it had never been interrupted
+    assert measured(summary) == measured(reference)  # as if it had never been interrupted
     assert _timeless(summary["best"]) == _timeless(reference["best"])
 
 
@@ -196,15 +124,15 @@ def test_a_full_disk_ends_the_attack_with_one_line_keeps_every_finished_query_an
     stack, reference = uninterrupted
     with _small_disk(tmp_path / "disk", "256m") as disk:
         out = disk / "attack"
-        argv = _attack_argv(kitti_window_bag, out, stack)
+        argv = attack_argv(kitti_window_bag, out, stack)
         zombie_shm_segments()  # what earlier tests left
         orchestrator = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
-            assert wait_for(lambda: len(_journaled(out)) >= 3 or orchestrator.poll() is not None, timeout=600)
+            assert wait_for(lambda: len(journaled(out)) >= 3 or orchestrator.poll() is not None, timeout=600)
             assert orchestrator.poll() is None, "the attack ended before the disk filled"
-            graph = _children(orchestrator.pid)
+            graph = children(orchestrator.pid)
             filler = _fill(disk)  # the disk is full from here on, as if another program had taken it
-            journaled = _journaled(out)
+            kept = journaled(out)
             _, errors = orchestrator.communicate(timeout=300)
         finally:
             orchestrator.kill()
@@ -213,16 +141,16 @@ def test_a_full_disk_ends_the_attack_with_one_line_keeps_every_finished_query_an
         last = errors.strip().splitlines()[-1]  # after the progress bar
         assert last.startswith("advsim attack: error: no space left on the device"), errors
         assert str(out) in last
-        assert wait_for(lambda: not any(_alive(pid) for pid in graph), timeout=5.0), [p for p in graph if _alive(p)]
+        assert wait_for(lambda: not any(alive(pid) for pid in graph), timeout=5.0), [p for p in graph if alive(p)]
         assert zombie_shm_segments() == 0
-        assert _journaled(out)[: len(journaled)] == journaled  # every query finished before is kept
+        assert journaled(out)[: len(kept)] == kept  # every query finished before is kept
         assert not list(out.rglob(".*.tmp")), "a half-written output was left"
         filler.unlink()  # space freed: the same command resumes and measures what an undisturbed run did
         final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
         assert final.returncode == 0, final.stderr
-        assert _journaled(out) == list(range(QUERIES + 3))
+        assert journaled(out) == list(range(QUERIES + 3))
         summary = json.loads((out / "summary.json").read_text())
-    assert _measured(summary) == _measured(reference)
+    assert measured(summary) == measured(reference)
 
 
 @pytest.mark.slow
@@ -234,17 +162,17 @@ def test_two_evaluation_lanes_measure_what_one_does_and_kill_9_leaves_nothing_of
 ) -> None:
     stack, reference = uninterrupted
     out = tmp_path / "lanes"
-    argv = _attack_argv(kitti_window_bag, out, stack, "--lanes", "2")
+    argv = attack_argv(kitti_window_bag, out, stack, "--lanes", "2")
     second_lane = out / "run" / "logs" / "lane1" / "graph_nodes.log"
     # killed once the second lane's graph replays a query: both graphs, both stacks running
-    _kill_9_at(argv, lambda: bool(_started(second_lane, 0)), out, zombie_shm_segments)
+    _kill_9_at(argv, lambda: bool(started(second_lane, 0)), out, zombie_shm_segments)
     final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
     assert final.returncode == 0, final.stderr
-    assert sorted(_journaled(out)) == list(range(QUERIES + 3))  # journaled as they finish, each exactly once
+    assert sorted(journaled(out)) == list(range(QUERIES + 3))  # journaled as they finish, each exactly once
     summary = json.loads((out / "summary.json").read_text())
     assert summary["search"]["lanes"] == 2
     assert any(name.startswith("lane1/") for name in summary["resources"]["processes"])
-    assert _measured(summary) == _measured(reference)  # same queries, same scores, same digests
+    assert measured(summary) == measured(reference)  # same queries, same scores, same digests
 
 
 @pytest.mark.slow
@@ -253,7 +181,7 @@ def test_a_stray_graph_on_the_same_ros_domain_changes_nothing_in_the_attack(
 ) -> None:
     stack, reference = uninterrupted
     out = tmp_path / "crosstalk"
-    orchestrator = subprocess.Popen(_attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
+    orchestrator = subprocess.Popen(attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
                                     stderr=subprocess.PIPE, text=True)  # fmt: skip
     graph_file = out / "run" / "graph.json"
     intruder = None
@@ -271,7 +199,7 @@ def test_a_stray_graph_on_the_same_ros_domain_changes_nothing_in_the_attack(
     assert orchestrator.returncode == 0, errors
     logs = "".join(path.read_text() for path in (out / "run" / "logs").glob("*.log"))
     assert "ignoring /advsim/perturbation messages of run 0x67932" in logs  # the stray run id, seen and ignored
-    assert _measured(json.loads((out / "summary.json").read_text())) == _measured(reference)
+    assert measured(json.loads((out / "summary.json").read_text())) == measured(reference)
 
 
 @pytest.mark.slow
@@ -284,14 +212,14 @@ def test_an_attack_suspended_while_its_graph_searches_on_journals_every_query_wh
     out = tmp_path / "suspended"
     player_log = out / "run" / "logs" / "graph_nodes.log"
     last_query = QUERIES + 2  # the second re-run of the best
-    orchestrator = subprocess.Popen(_attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
+    orchestrator = subprocess.Popen(attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
                                     stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
-        assert wait_for(lambda: len(_journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
+        assert wait_for(lambda: len(journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
         assert orchestrator.poll() is None, "the attack ended before it could be suspended"
         orchestrator.send_signal(signal.SIGSTOP)
-        ran_ahead = wait_for(lambda: last_query in _started(player_log, 0), timeout=120)
-        journaled_while_suspended = len(_journaled(out))
+        ran_ahead = wait_for(lambda: last_query in started(player_log, 0), timeout=120)
+        journaled_while_suspended = len(journaled(out))
         orchestrator.send_signal(signal.SIGCONT)
         _, errors = orchestrator.communicate(timeout=120)
     finally:
@@ -299,8 +227,8 @@ def test_an_attack_suspended_while_its_graph_searches_on_journals_every_query_wh
     assert ran_ahead, "the graph did not replay the last query while the orchestrator was suspended"
     assert journaled_while_suspended < last_query + 1  # so the monitor really missed queries as they happened
     assert orchestrator.returncode == 0, errors
-    assert _journaled(out) == list(range(last_query + 1))  # every query exactly once
-    assert _measured(json.loads((out / "summary.json").read_text())) == _measured(reference)
+    assert journaled(out) == list(range(last_query + 1))  # every query exactly once
+    assert measured(json.loads((out / "summary.json").read_text())) == measured(reference)
 
 
 @pytest.mark.slow
@@ -309,7 +237,7 @@ def test_a_stack_that_is_not_deterministic_is_reported_as_such_and_replay_check_
 ) -> None:
     out = tmp_path / "flaky"
     result = subprocess.run(
-        _attack_argv(kitti_window_bag, out, simple_stack(flaky_probability=0.3)), capture_output=True, text=True,
+        attack_argv(kitti_window_bag, out, simple_stack(flaky_probability=0.3)), capture_output=True, text=True,
         timeout=900, check=False,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
@@ -333,7 +261,7 @@ def test_a_stack_that_never_hears_the_lidar_ends_the_attack_with_what_it_listens
 ) -> None:
     stack = simple_stack() + " -r /sensor/lidar/points:=/points_raw"  # the user's own topic name, not remapped
     result = subprocess.run(
-        _attack_argv(kitti_window_bag, tmp_path / "deaf", stack, "--connect-timeout", "20"),
+        attack_argv(kitti_window_bag, tmp_path / "deaf", stack, "--connect-timeout", "20"),
         capture_output=True, text=True, timeout=600, check=False,
     )  # fmt: skip
     assert result.returncode == 1
@@ -351,15 +279,15 @@ def test_sigint_and_sigterm_end_the_attack_with_one_line_their_exit_code_and_not
 ) -> None:
     out = tmp_path / "stopped"
     # a budget it cannot finish before the signal (a warm machine scores several queries a second)
-    argv = _attack_argv(kitti_window_bag, out, simple_stack(), "--queries", "500")
+    argv = attack_argv(kitti_window_bag, out, simple_stack(), "--queries", "500")
     # as from a terminal: SIGINT handled (a test run started in the background by a script inherits it ignored)
     orchestrator = subprocess.Popen(
         argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # before any thread starts
     )  # fmt: skip
     try:
-        assert wait_for(lambda: len(_journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
-        graph = _children(orchestrator.pid)
+        assert wait_for(lambda: len(journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
+        graph = children(orchestrator.pid)
         orchestrator.send_signal(sent)
         _, errors = orchestrator.communicate(timeout=60)
     finally:
@@ -367,8 +295,8 @@ def test_sigint_and_sigterm_end_the_attack_with_one_line_their_exit_code_and_not
     assert orchestrator.returncode == code, errors
     assert "Traceback" not in errors
     assert errors.strip().splitlines()[-1].startswith(f"advsim attack: {word}")
-    assert not [pid for pid in graph if _alive(pid)]
-    assert len(_journaled(out)) >= 2  # what finished is kept
+    assert not [pid for pid in graph if alive(pid)]
+    assert len(journaled(out)) >= 2  # what finished is kept
 
 
 @pytest.mark.parametrize(

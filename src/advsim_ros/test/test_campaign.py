@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 import yaml
+from attack_runs import alive
 
 from advsim_ros.ros.launcher import wait_for
 
@@ -213,8 +214,8 @@ def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
     finally:
         if driver.poll() is None:
             driver.kill()
-    assert wait_for(lambda: not [pid for pid in below if _alive(pid)], timeout=30), [
-        _cmdline(pid) for pid in below if _alive(pid)
+    assert wait_for(lambda: not [pid for pid in below if alive(pid)], timeout=30), [
+        _cmdline(pid) for pid in below if alive(pid)
     ]
     assert zombie_shm_segments() == 0  # the graphs' shared memory went with them
 
@@ -224,11 +225,3 @@ def _cmdline(pid: int) -> bytes:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
         return b""
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_bytes().rsplit(b")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != b"Z"

@@ -60,12 +60,15 @@ class DoctorReport:
     out_dir: Path
     timer: bool = False  # the profile says the stack plans on its own timer (only the decision plan is awaited)
     profile: dict[str, Any] | None = None  # a suggested stack profile (written to OUTDIR/suggested_profile.yaml)
+    plan_problem: str = ""  # why the decision plan could not be scored ("" when it was)
 
     @property
     def ok(self) -> bool:
-        """The stack answered every sweep of the window with a plan (a timer-driven one: the decision sweep)."""
+        """The stack answered every sweep of the window with a plan (a timer-driven one: the decision sweep), and
+        the decision plan is one the scorer can use (finite, non-empty, increasing stamps, in the world frame)."""
         wanted = 1 if self.timer else self.sweeps_delivered
-        return not self.error and self.sweeps_delivered > 0 and self.plans_received >= wanted > 0
+        answered = self.sweeps_delivered > 0 and self.plans_received >= wanted > 0
+        return not self.error and answered and not self.plan_problem
 
     def as_text(self) -> str:
         lines = [f"{'contract topic':<24} {'dir':<4} {'stack topic':<28} {'type':<34} {'QoS':<26} verdict"]
@@ -90,6 +93,8 @@ class DoctorReport:
                     "  the contract wants one nav_msgs/Path per sweep with header.stamp = the sweep's stamp; a stack "
                     "planning on its own timer: a stack profile with timing: {mode: timer}"
                 )
+        if self.plan_problem:
+            lines.append(f"plan: not usable: {self.plan_problem}")
         if self.error:
             lines.append(f"replay: {self.error}")
         if self.suggestions:
@@ -271,6 +276,8 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     score = (summary.get("queries") or [{}])[0].get("score", {}) if summary else {}
     timer = profile is not None and profile.timing.timer
     plans, sweeps = int(score.get("plans_received") or 0), int(score.get("sweeps_delivered") or 0)
+    # a plan came back but could not be scored (NaN, empty, stamps, frame): the scorer's reason
+    plan_problem = str(score.get("message") or score.get("status")) if plans and score.get("status") != "ok" else ""
     seen_timer = timer or (0 < plans < sweeps)  # answers some sweeps, not each: planning on a timer
     suggestion = suggested_profile(nodes, options.stack.command, seen_timer)
     if nodes:
@@ -288,4 +295,5 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
         plans_received=int(score.get("plans_received") or 0),
         stack_ms_median=_stack_ms(trace_dir) if trace_dir.is_dir() else None,
         out_dir=out_dir,
+        plan_problem=plan_problem,
     )

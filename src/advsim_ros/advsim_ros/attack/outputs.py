@@ -20,6 +20,7 @@ from advsim_ros.attack.checks import Preflight
 from advsim_ros.attack.options import AttackOptions
 from advsim_ros.attack.params import section
 from advsim_ros.attack.summary import attack_summary, recorded_query
+from advsim_ros.attack.verdict import attack_verdict
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.digests import InputDigest
 from advsim_ros.contract.plan import path_msg
@@ -83,6 +84,7 @@ def write_outputs(
             "lanes": options.lanes,  # evaluation graphs of the last run (never changes a score)
         },
         **analysis,
+        "verdict": attack_verdict(records, options.replay_only).as_json(),
         "stack_crashes": crashes,
         "wall_time_s": wall_time,
         "resources": resources,  # this run's processes (empty when the journal was finished before)

@@ -15,12 +15,13 @@ written from the journal alone.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import resource
 import secrets
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ from typing import Any
 import yaml
 
 from advsim_ros.attack.checks import Preflight, preflight
-from advsim_ros.attack.options import AttackOptions
+from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
@@ -38,13 +39,14 @@ from advsim_ros.ros.launcher import (
     Launcher,
     NodeSpec,
     graph_environment,
-    graph_overrides,
+    join_graph,
     python_module_command,
     reserve_domain_id,
 )
 from advsim_ros.ros.trace import Trace
 
 JOURNAL_NAME = "queries.jsonl"
+LOCK_NAME = ".advsim.lock"  # held by the run using the folder (hold_output_folder)
 CONTAINER = "graph_nodes"  # the process of the light nodes (nodes/container.py)
 RESIM = "lidar_resim"  # in a process of its own: it computes while the others wait
 ADAPTER = "stack_adapter"  # with a stack profile or --remap (relay mode): the stack's names, types, frames, timing
@@ -173,8 +175,49 @@ def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None
     checked = preflight(options, overrides)
     overrides["/**"]["ros__parameters"]["window"]["window_start_frame"] = checked.window.window_start_frame
     fingerprint = _fingerprint(options, checked)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    journal = Journal.open(journal_path, fingerprint)
+    with hold_output_folder(out_dir):
+        return _run_locked(options, checked, overrides, fingerprint, progress)
+
+
+@contextlib.contextmanager
+def hold_output_folder(out_dir: Path) -> Iterator[None]:
+    """One attack per output folder: an flock on OUTDIR/.advsim.lock for as long as this attack runs.
+
+    The kernel drops the lock however this process ends (kill -9 included), so a crashed attack
+    never leaves the folder locked; a second attack on a folder in use is refused with its pid.
+    """
+    if out_dir.exists() and not out_dir.is_dir():
+        raise AttackError(f"{out_dir}: exists and is not a folder; give -o a folder (it is created if missing)")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:  # a parent that is a file, no permission: one line, not an errno
+        raise AttackError(f"{out_dir}: cannot create the output folder ({error.strerror})") from None
+    fd = os.open(out_dir / LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            raise AttackError(
+                f"{out_dir} is in use by another advsim run (pid {holder}); wait for it to end or use another "
+                "output folder"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _run_locked(
+    options: AttackOptions,
+    checked: Preflight,
+    overrides: dict[str, Any],
+    fingerprint: Fingerprint,
+    progress: Callable[[dict[str, Any]], None] | None,
+) -> AttackResult:
+    out_dir = options.out_dir.resolve()
+    journal = Journal.open(out_dir / JOURNAL_NAME, fingerprint)
     started = time.monotonic()
     trace = Trace("advsim_attack")
     trace("checked")
@@ -217,7 +260,7 @@ def _run_graph(
     with contextlib.ExitStack() as resources:
         leases = [resources.enter_context(reserve_domain_id()) for _ in range(options.lanes)]
         domains = [lease.domain_id for lease in leases]
-        os.environ.update(graph_overrides(domains[0]))  # the monitors in this process use the same discovery
+        join_graph(domains[0])  # the monitors in this process use the same transports
         # for people who want to look at the live graph
         write_text_atomically(run_dir / "graph.json", json.dumps({"ros_domain_id": domains[0], "run_id": run_id}))
         lanes_file = None
@@ -231,6 +274,7 @@ def _run_graph(
             log_dir = run_dir / "logs" if index == 0 else run_dir / "logs" / f"lane{index}"
             specs = _graph_specs(options, checked, overrides_file, lanes_file, run_id, search=index == 0)
             stack = options.stack.processes()
+            # each lane's processes carry a marker of their own (ros.identity): the lane's publishers, its reaper's prey
             launcher = resources.enter_context(Launcher(graph_environment(lease.domain_id), log_dir, lease))
             monitor = resources.enter_context(
                 AttackMonitor(run_id, skip, StackNames(options.stack.relayed()), lease.domain_id, index)

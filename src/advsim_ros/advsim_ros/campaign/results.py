@@ -31,7 +31,7 @@ METRICS = (
 IDENTITY = ("attack", "scenario", "window_start", "stack", "algorithm", "budget", "actors", "objective", "seed", "loop")
 COLUMNS = (
     *IDENTITY,
-    "status",  # ok | failed (the attack could not run to its end: see error)
+    "status",  # ok | failed (the attack could not run to its end, or its queries failed: see error)
     *(f"original_{name}" for name in METRICS),
     *(f"adversarial_{name}" for name in METRICS),
     "queries",  # scored queries (original and re-runs included)
@@ -59,7 +59,8 @@ def attack_row(
 ) -> dict[str, Any]:
     """The results row of a finished attack from its summary.json and what running it cost."""
     row: dict[str, Any] = {key: identity.get(key, "open") for key in IDENTITY}  # plans of before loops: open
-    row["status"] = "ok" if summary.get("adversarial") else "failed"
+    verdict = summary.get("verdict") or {"ok": True, "reason": ""}  # summaries of before verdicts: as they were
+    row["status"] = "ok" if summary.get("adversarial") and verdict["ok"] else "failed"
     for prefix, score in (("original", summary.get("original")), ("adversarial", summary.get("adversarial"))):
         for name in METRICS:
             row[f"{prefix}_{name}"] = _metric(score, name)
@@ -71,7 +72,7 @@ def attack_row(
     row["peak_rss_mb"] = float(cost.get("peak_rss_mb", math.nan))
     row["bag"] = str(identity["bag"])
     row["out_dir"] = out_dir
-    row["error"] = "" if row["status"] == "ok" else "no adversarial scenario was scored"
+    row["error"] = "" if row["status"] == "ok" else verdict["reason"] or "no adversarial scenario was scored"
     return row
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import logging
 import signal
 import sys
 from collections.abc import Sequence
@@ -63,6 +64,8 @@ def _os_error_text(error: OSError, args: argparse.Namespace) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    # the library's warnings (a damaged journal line set aside, ...) as one line each on stderr
+    logging.basicConfig(level=logging.WARNING, format=f"advsim {args.command}: warning: %(message)s")
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         result: int = args.run(args)

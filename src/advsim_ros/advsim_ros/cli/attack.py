@@ -239,11 +239,35 @@ def _attack_and_report(options: AttackOptions) -> int:
     print(comparison_table(summary))
     if summary["flaky"]:
         print(f"flaky: queries {summary['flaky']} did not reproduce when re-run (see summary.json 'reproductions')")
+    _print_outputs(result.out_dir, summary)
+    return _exit_code(options, result.out_dir, summary)
+
+
+def _print_outputs(out_dir: Path, summary: dict[str, Any]) -> None:
+    """Where to look: only the files this run left (a run whose queries failed has no adversarial bag or report)."""
     outputs = summary.get("outputs", {})
-    print(f"look at: {outputs.get('report', result.out_dir / 'report.html')} (report), "
-          f"{outputs.get('bev_animation', result.out_dir / 'bev.gif')} (animation)")  # fmt: skip
-    print(f"outputs: {result.out_dir}/adversarial  {result.out_dir}/summary.json  {result.out_dir}/bev.png")
-    return 0
+    looks = [(outputs.get("report"), "report"), (outputs.get("bev_animation"), "animation")]
+    shown = [f"{path} ({what})" for path, what in looks if path and Path(path).exists()]
+    if shown:
+        print(f"look at: {', '.join(shown)}")
+    files = [outputs.get("adversarial_bag"), str(out_dir / "summary.json"), outputs.get("bev")]
+    print(f"outputs: {'  '.join(str(path) for path in files if path and Path(path).exists())}")
+
+
+def _exit_code(options: AttackOptions, out_dir: Path, summary: dict[str, Any]) -> int:
+    """0 when the work succeeded (attack.verdict); else one line saying why, the stack's log tail, exit code 1."""
+    verdict = summary["verdict"]
+    if verdict["ok"]:
+        return 0
+    command = "replay" if options.replay_only else "attack"
+    print(f"advsim {command}: error: {verdict['reason']}", file=sys.stderr)
+    for process in options.stack.processes():
+        log = out_dir / "run" / "logs" / f"{process.name}.log"
+        lines = log.read_text(errors="replace").splitlines()[-10:] if log.exists() else []
+        tail = "".join(f"\n  {line}" for line in lines)
+        print(f"the last lines of the stack's log {log}:{tail}" if lines else f"the stack's log {log} is empty",
+              file=sys.stderr)  # fmt: skip
+    return 1
 
 
 def _run_replay(args: argparse.Namespace) -> int:
@@ -272,7 +296,10 @@ def _run_replay(args: argparse.Namespace) -> int:
     reproduced = sum(1 for value in replayed if _same(value, expected, args.tolerance))
     print(f"recorded L_adv {expected}  replayed L_adv {', '.join(str(v) for v in replayed)}")
     print(f"reproduced {reproduced} of {len(replayed)} runs")
-    print(f"outputs: {out}/summary.json  {out}/bev.png")
+    _print_outputs(result.out_dir, result.summary)
+    failed = _exit_code(options, result.out_dir, result.summary)
+    if failed:
+        return failed
     if args.check and reproduced < len(replayed):
         print("advsim replay: the replayed score differs from the recorded one", file=sys.stderr)
         return 3

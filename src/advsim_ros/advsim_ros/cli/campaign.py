@@ -71,9 +71,14 @@ def _run_campaign(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     written = write_campaign_outputs(args.config, args.out, journal)
-    errors = [entry for entry in journal.of_kind("attack", finished=False) if "error" in entry]
+    # attacks that could not run, and attacks that ran but whose queries failed (attack.verdict)
+    errors = [
+        entry
+        for entry in journal.of_kind("attack", finished=False)
+        if "error" in entry or entry["row"]["status"] != "ok"
+    ]
     for entry in errors:
-        print(f"attack {entry['row']['attack']} failed: {entry['error']}")
+        print(f"attack {entry['row']['attack']} failed: {entry.get('error') or entry['row']['error']}")
     print(f"report: {written['report_md']}  {written['report_html']}  results: {written['results_csv']}")
     print(f"regression suite: {written['suite']} ({written['suite_size']} scenarios)")
     return 1 if errors else 0

@@ -20,6 +20,7 @@ class Outcome(IntEnum):
     COMPLETE = 0
     PLANS_MISSING = 1
     STACK_LOST = 2
+    FOREIGN_PUBLISHER = 3
 
 
 class Status(IntEnum):
@@ -29,8 +30,9 @@ class Status(IntEnum):
     STACK_TIMEOUT = 1
     STACK_ERROR = 2
     INFEASIBLE = 3
+    FOREIGN_PUBLISHER = 4
 
     @property
     def label(self) -> str:
-        """The name summaries and journals use: ok, stack_timeout, stack_error, infeasible."""
+        """The name summaries and journals use: ok, stack_timeout, stack_error, infeasible, foreign_publisher."""
         return self.name.lower()

@@ -149,6 +149,7 @@ class EpisodeRecord:
     predictions: TrackArrayRecord | None = None
     executed: TrackRecord | None = None  # closed loop: what the ego drove from the decision on (sim time)
     reacted_actors: tuple[TrackRecord, ...] = ()  # closed loop: the reactive actors that left their tracks (sim time)
+    outcome_detail: str = ""  # what went wrong, when the outcome is not COMPLETE
 
 
 def _no_track() -> Any:
@@ -173,6 +174,7 @@ def episode_msg(episode: EpisodeRecord, run_id: int, detections: Any = None, pre
         sweeps_delivered=episode.sweeps_delivered,
         plans_received=episode.plans_received,
         outcome=int(episode.outcome),
+        outcome_detail=episode.outcome_detail,
         input_digest=episode.input_digest,
         plan_digest=episode.plan_digest,
         has_plan=episode.decision_plan is not None,
@@ -199,6 +201,7 @@ def episode_from_msg(episode: Any) -> EpisodeRecord:
         sweeps_delivered=int(episode.sweeps_delivered),
         plans_received=int(episode.plans_received),
         outcome=Outcome(int(episode.outcome)),
+        outcome_detail=str(episode.outcome_detail),
         input_digest=str(episode.input_digest),
         plan_digest=str(episode.plan_digest),
         decision_plan=episode.decision_plan if episode.has_plan else None,

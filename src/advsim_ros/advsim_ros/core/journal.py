@@ -5,12 +5,15 @@ budget, a digest of every parameter); each further line is one finished query (i
 perturbation and its score). A run killed at any point leaves a journal whose complete lines
 all stand (a line cut short by the kill is dropped on reopening); running the same attack again
 replays them into the search instead of recomputing them, and a journal of a different attack
-is refused with the keys that differ.
+is refused with the keys that differ. A line damaged in the middle (a disk error, an editor) is
+not silently dropped: it is kept aside in queries.jsonl.corrupt with a warning naming its line,
+and its query is evaluated again.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -25,6 +28,7 @@ from advsim_ros.core.closed_loop import ExecutedTrajectory
 from advsim_ros.core.types import ActorClass, ActorTrack, Plan, ScenarioError
 
 JOURNAL_VERSION = 1
+_log = logging.getLogger(__name__)
 _FINISHED_KEY = "search_finished"
 
 
@@ -181,10 +185,9 @@ class Journal:
             raise JournalError(
                 f"{path.parent} holds another attack ({details}); use another output folder or the same settings"
             )
-        records, good_bytes, finished = [], len(lines[0]) + 1, False
-        for line in lines[1:]:
+        records, kept, corrupt, finished = [], [lines[0]], [], False
+        for number, line in enumerate(lines[1:], start=2):
             if not line.strip():
-                good_bytes += len(line) + 1
                 continue
             try:
                 values = json.loads(line)
@@ -193,13 +196,16 @@ class Journal:
                 else:
                     records.append(QueryRecord.from_json(values))
             except (ValueError, KeyError, TypeError, AttributeError):
-                break  # a line cut short by a kill while it was written: everything before it stands
-            good_bytes += len(line) + 1
-        if good_bytes < path.stat().st_size:
-            with path.open("r+b") as stream:  # drop the torn tail so the next append starts on a clean line
-                stream.truncate(min(good_bytes, path.stat().st_size))
-                stream.flush()
-                os.fsync(stream.fileno())
+                if number == len(lines):  # the last line, cut short by a kill while it was written: dropped
+                    continue
+                corrupt.append((number, line))  # damaged in place: kept aside, and said
+                continue
+            kept.append(line)
+        clean = b"\n".join(kept) + b"\n"
+        if corrupt:
+            _set_aside(path, corrupt)
+        if clean != path.read_bytes():  # rewrite without the torn tail or the damaged lines; the next append is clean
+            write_text_atomically(path, clean.decode("utf-8"))
         return Journal(path, fingerprint, records, finished)
 
     @property
@@ -232,6 +238,23 @@ class Journal:
             self.finished = True
 
 
+CORRUPT_SUFFIX = ".corrupt"  # queries.jsonl.corrupt: journal lines found damaged, as they were
+
+
+def _set_aside(path: Path, corrupt: Sequence[tuple[int, bytes]]) -> None:
+    """Keep damaged journal lines beside the journal and say so; their queries are evaluated again."""
+    aside = path.with_name(path.name + CORRUPT_SUFFIX)
+    with aside.open("ab") as stream:
+        for _, line in corrupt:
+            stream.write(line + b"\n")
+        stream.flush()
+        os.fsync(stream.fileno())
+    numbers = ", ".join(str(number) for number, _ in corrupt)
+    _log.warning(
+        f"{path}: line(s) {numbers} damaged (not a query record); kept aside in {aside}, their queries run again"
+    )
+
+
 def read_records(path: Path) -> list[QueryRecord]:
     """The query records of a journal without checking its fingerprint (the search node replays them)."""
     path = Path(path)
@@ -244,7 +267,7 @@ def read_records(path: Path) -> list[QueryRecord]:
             if not values.get(_FINISHED_KEY):
                 records.append(QueryRecord.from_json(values))
         except (ValueError, KeyError, TypeError, AttributeError):
-            break
+            continue  # Journal.open has set damaged lines aside; a torn last line is not a query
     return records
 
 

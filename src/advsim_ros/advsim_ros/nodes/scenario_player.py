@@ -30,6 +30,7 @@ from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros import lockstep
 from advsim_ros.ros.closed_loop import ClosedLoopSetup, ReactiveSetup, loop_frames
 from advsim_ros.ros.graph_node import run_node
+from advsim_ros.ros.identity import RUN_MARKER, run_membership
 from advsim_ros.ros.params import declare_config
 
 
@@ -88,7 +89,10 @@ class ScenarioPlayer(ScenarioNode):
             self.subscribe(topic, stream.add, raw=True)
         names = lockstep.StackNames.from_pairs(self.config.stack_topics)
         self.stack_names = names
-        self.liveness = lockstep.StackLiveness(self, names)
+        membership = run_membership()
+        if membership is None:  # started by hand or by a launch file without the marker
+            self.get_logger().warning(f"no {RUN_MARKER} in the environment: publishers on the stack's topics unchecked")
+        self.liveness = lockstep.StackLiveness(self, names, membership)
         self.readiness = lockstep.Readiness(self, self.latched, self.config.settle_time, names)
         self.queries: queue.Queue[int] = queue.Queue()
         self.moved: dict[int, tuple[ActorTrack, ...]] = {}  # query -> its perturbed tracks (reactive actors)

@@ -67,8 +67,9 @@ class Scorer(ScenarioNode):
             moved = self.tracks.pop(query_id, ())
             wall_time = time.monotonic() - self.started.pop(query_id, time.monotonic())
             score = score_episode(
-                episode, moved, self.scenario, self.clock, self.decision_frame, self.settings, self.drivable, wall_time
-            )
+                episode, moved, self.scenario, self.clock, self.decision_frame, self.settings, self.drivable, wall_time,
+                self.bag_config.world_frame,
+            )  # fmt: skip
             self.publish_score(score_msg(score, self.run_id))
             self.trace("score_sent", query_id)
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import random
+import secrets
 import shutil
 import signal
 import subprocess
@@ -27,10 +29,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
+from advsim_ros.ros.identity import RUN_MARKER
+
 # Fast DDS accepts domain ids 0..232; the low ones are left to the user's own graphs.
 _DOMAIN_IDS = range(100, 230)
 _LOCK_DIR = Path(tempfile.gettempdir()) / "advsim_ros_domains"
-FASTDDS_PROFILES = Path(__file__).resolve().parent / "fastdds_large_data.xml"
+FASTDDS_PROFILES = Path(__file__).resolve().parent / "fastdds_graph.xml"
 
 
 class LaunchError(RuntimeError):
@@ -87,9 +91,10 @@ def reserve_domain_id() -> Iterator[DomainLease]:
     The lock is an flock on a file per domain; processes started by a Launcher with this lease
     inherit the open file, so the lock is released only when the orchestrator *and* every
     process of its graph have exited (never unlocked explicitly, which would release it for all).
+    Free domains are tried in a random order: which one an attack gets cannot be predicted.
     """
     _LOCK_DIR.mkdir(parents=True, exist_ok=True)
-    for domain_id in _DOMAIN_IDS:
+    for domain_id in random.SystemRandom().sample(_DOMAIN_IDS, len(_DOMAIN_IDS)):
         fd = os.open(_LOCK_DIR / f"{domain_id}.lock", os.O_WRONLY | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -118,38 +123,66 @@ def die_with_parent(argv: list[str]) -> list[str]:
     return [setpriv, "--pdeathsig", "KILL", "--", *argv]
 
 
-def start_reaper(log: Path, env: Mapping[str, str], pass_fds: tuple[int, ...] = ()) -> subprocess.Popen[bytes]:
-    """A reaper (ros.reaper) in a session of its own: what it is told on its stdin dies when this process does."""
+def start_reaper(
+    log: Path, env: Mapping[str, str], pass_fds: tuple[int, ...] = (), marker: str | None = None
+) -> subprocess.Popen[bytes]:
+    """A reaper (ros.reaper) in a session of its own: what it is told on its stdin dies when this process does.
+
+    With ``marker`` it also ends every process that carries the marker in its environment, wherever
+    it went (its own session, a daemon's double fork); the reaper itself runs without it.
+    """
+    reaper_env = {key: value for key, value in env.items() if key != RUN_MARKER}
     with open(log, "ab") as reaper_log:
-        return subprocess.Popen(
+        reaper = subprocess.Popen(
             python_module_command("advsim_ros.ros.reaper"),
             stdin=subprocess.PIPE,
             stdout=subprocess.DEVNULL,
             stderr=reaper_log,
             pass_fds=pass_fds,
             start_new_session=True,
-            env={**env, "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"},  # it needs no ROS libraries: no re-exec
+            env={**reaper_env, "_ROS_WHEELS_BOOTSTRAP_COMPLETE": "1"},  # it needs no ROS libraries: no re-exec
         )
+    if marker:
+        assert reaper.stdin is not None
+        reaper.stdin.write(f"marker {marker}\n".encode())
+        reaper.stdin.flush()
+    return reaper
 
 
 def graph_overrides(domain_id: int) -> dict[str, str]:
-    """Environment variables that put a process on one isolated graph: own domain, loopback discovery."""
+    """Environment variables that put a process on one isolated graph: own domain, shared memory only.
+
+    The profile gives Fast DDS no network transport at all (discovery and data over shared memory,
+    segments large enough for whole sweeps), so the graph is reachable from this machine only and
+    opens no socket. SYSTEM_DEFAULT keeps rmw_fastrtps from adding a UDP transport of its own (it
+    does for LOCALHOST, bound to every interface).
+    """
     return {
         "ROS_DOMAIN_ID": str(domain_id),
-        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
         "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
-        # shared memory with large segments for data: LiDAR sweeps are not fragmented over UDP
         "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES),
         "PYTHONUNBUFFERED": "1",
     }
+
+
+_NETWORK_SETTINGS = ("ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY", "FASTDDS_BUILTIN_TRANSPORTS", "ROS_DISCOVERY_SERVER")
 
 
 def graph_environment(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
     """Environment for every process of one isolated graph (`base`, default os.environ, plus the overrides)."""
     env = dict(os.environ if base is None else base)
     env.update(graph_overrides(domain_id))
-    env.pop("ROS_STATIC_PEERS", None)
+    for variable in _NETWORK_SETTINGS:  # a user's network settings would bring UDP back (graph_overrides)
+        env.pop(variable, None)
     return env
+
+
+def join_graph(domain_id: int) -> None:
+    """Put this process's own ROS participants (created after this call) on the graph, as graph_environment does."""
+    os.environ.update(graph_overrides(domain_id))
+    for variable in _NETWORK_SETTINGS:
+        os.environ.pop(variable, None)
 
 
 @dataclass
@@ -161,17 +194,23 @@ class _Running:
 
 
 class Launcher:
-    """Starts the processes of one graph (each in its own process group) and stops them all on exit."""
+    """Starts the processes of one graph (each in its own process group) and stops them all on exit.
+
+    Every process gets the graph's marker in its environment (a new one per launcher): the graph's
+    nodes tell its own publishers from foreign ones by it (ros.identity), and the reaper finds by
+    it whatever the stack started outside its process group.
+    """
 
     def __init__(self, env: Mapping[str, str], log_dir: Path, lease: DomainLease) -> None:
-        self._env = dict(env)
+        self.marker = secrets.token_hex(16)
+        self._env = {**env, RUN_MARKER: self.marker}
         self._log_dir = log_dir
         self._lease = lease
         self._running: list[_Running] = []
         self._stopped_resources: dict[str, dict[str, float]] = {}
         log_dir.mkdir(parents=True, exist_ok=True)
         # The reaper first: from now on nothing this launcher starts can outlive the orchestrator.
-        self._reaper = start_reaper(log_dir / "reaper.log", self._env, (lease.lock_fd,))
+        self._reaper = start_reaper(log_dir / "reaper.log", self._env, (lease.lock_fd,), self.marker)
         assert self._reaper.stdin is not None
         self._tell_reaper = self._reaper.stdin
 

@@ -30,6 +30,7 @@ from advsim_ros.core.closed_loop import VehicleState
 from advsim_ros.core.episode import EpisodeClock
 from advsim_ros.core.types import ActorTrack, FloatArray, ScenarioError
 from advsim_ros.ros.closed_loop import LOOPS, ClosedLoopSetup, LoopCounts, LoopFrame, close_loop
+from advsim_ros.ros.identity import ForeignEndpoint, Membership
 
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
@@ -107,6 +108,10 @@ def stack_publishes(node: Node, topic: topics.TopicSpec, names: StackNames) -> b
 # Topics the player and the stack exchange: every endpoint of them must be matched before a query.
 TO_STACK = (topics.LIDAR, topics.ODOM, topics.TF, topics.CLOCK)
 FROM_STACK = (topics.PLAN,)
+# Every topic the stack reads or answers on: only the attack's processes may publish on them.
+STACK_TOPICS = (
+    *TO_STACK, topics.TF_STATIC, topics.SCENARIO_INFO, topics.MAP, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS,
+)  # fmt: skip
 
 
 def _stack_gids(node: Node, names: StackNames) -> frozenset[bytes]:
@@ -167,18 +172,26 @@ class Readiness:
 
 
 class StackLiveness:
-    """Whether the stack's plan publisher changed since the query began (exit, crash, restart).
+    """Whether the stack the query talks to is still the one it began with, and only it.
 
-    A process that crashed stays in the DDS graph until its lease expires, but a restarted one
-    brings a new publisher: no publisher, or one that was not there when the query began,
-    counts (an old one expiring does not), and is remembered for the rest of the query.
+    Lost: the stack's plan publisher changed since the query began (exit, crash, restart). A
+    process that crashed stays in the DDS graph until its lease expires, but a restarted one
+    brings a new publisher: no publisher, or one that was not there when the query began, counts
+    (an old one expiring does not), and is remembered for the rest of the query.
+
+    Foreign: a process the attack did not start publishes on one of the stack's topics, inputs or
+    outputs, under the contract's names or the stack's own (ros.identity); its messages could
+    reach the stack or the score, so the query cannot be trusted. Remembered for the query too.
     """
 
-    def __init__(self, node: Node, names: StackNames) -> None:
+    def __init__(self, node: Node, names: StackNames, membership: Membership | None = None) -> None:
         self._node = node
         self._names = names
+        self._membership = membership
+        self._watched = [name for topic in STACK_TOPICS for name in (topic.name, names(topic))]
         self._at_start: frozenset[bytes] = frozenset()
         self.lost = False
+        self.foreign: dict[ForeignEndpoint, None] = {}  # in the order they were seen
 
     def _publishers(self) -> frozenset[bytes]:
         endpoints = stack_endpoints(self._node, self._names(topics.PLAN), True)
@@ -187,12 +200,28 @@ class StackLiveness:
     def begin(self) -> None:
         self._at_start = self._publishers()
         self.lost = False
+        self.foreign = {}
+        self._check_foreign()
+
+    def _check_foreign(self) -> None:
+        if self._membership is not None:
+            self.foreign.update(dict.fromkeys(self._membership.foreign_publishers(self._node, self._watched)))
 
     def check(self) -> bool:
+        """True once the stack was lost or a foreign publisher was seen (the query can end)."""
         current = self._publishers()
         if not current or current - self._at_start:
             self.lost = True
-        return self.lost
+        self._check_foreign()
+        return self.lost or bool(self.foreign)
+
+    def outcome(self, complete: bool) -> tuple[Outcome, str]:
+        """How the query ended, with what went wrong; ``complete``: every frame and awaited plan went through."""
+        if self.foreign:
+            return Outcome.FOREIGN_PUBLISHER, "; ".join(endpoint.describe() for endpoint in self.foreign)
+        if self.lost:
+            return Outcome.STACK_LOST, ""
+        return (Outcome.COMPLETE, "") if complete else (Outcome.PLANS_MISSING, "")
 
 
 @dataclass(frozen=True, eq=False)
@@ -334,6 +363,7 @@ def replay_query(
                 plan = _stepped_wait(inputs.plans, sim, config, outputs, stack_gone)
             else:
                 plan = inputs.plans.wait(sim, config.plan_timeout, stack_gone)
+            liveness.check()  # whoever published what just arrived is still in the graph: is it the stack?
             if plan is None:
                 plans_flowing = False  # do not wait at every frame for a stack that has stopped answering
             else:
@@ -365,15 +395,11 @@ def replay_query(
         )
         count += len(closed_loop.frames)
     liveness.check()
-    if liveness.lost:
-        outcome = Outcome.STACK_LOST
-    elif received < awaited or delivered < count:
-        outcome = Outcome.PLANS_MISSING
-    else:
-        outcome = Outcome.COMPLETE
+    outcome, detail = liveness.outcome(received >= awaited and delivered >= count)
     done = EpisodeRecord(
         query_id, Phase.DONE, count - 1, count, segment, delivered, received, outcome,
         inputs_digest.hexdigest(), plans_digest.hexdigest(), decision_plan, executed=executed, reacted_actors=reacted,
+        outcome_detail=detail,
     )  # fmt: skip
     outputs.episode(done, answers["detections"], answers["predictions"])
     outputs.trace("done_sent", query_id, -1)

@@ -3,9 +3,11 @@
 ``advsim attack`` (the orchestrator) starts this process first and tells it, on its standard
 input, the process group of every process it starts (each node and the stack run in a group of
 their own); ``advsim campaign`` tells it single processes instead (``pid PID STARTTIME``: the
-local Ray's own processes, which share the driver's group). When standard input closes — the
-orchestrator exited, crashed or was killed with SIGKILL — the reaper sends SIGKILL to every
-process and group it was told about, waits until no process of the groups is left, removes the
+local Ray's own processes, which share the driver's group), and the run's marker (``marker
+TOKEN``: every process the graph started carries it in its environment, so a process the stack
+put in a session of its own is found too). When standard input closes — the orchestrator exited,
+crashed or was killed with SIGKILL — the reaper sends SIGKILL to every process and group it was
+told about and every process carrying the marker, waits until none of them is left, removes the
 Fast DDS shared-memory segments their processes left behind (a process killed with SIGKILL never
 unlinks its segment, 32 MiB of RAM each under ``/dev/shm``), and exits. It holds the graph's
 ROS-domain lock until then, so the domain is not handed to another graph while anything of this
@@ -24,6 +26,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from advsim_ros.ros.identity import marked_processes
 
 _SETTLE_POLL = 0.02  # [s]
 _GIVE_UP_AFTER = 30.0  # a process stuck in uninterruptible sleep is reported, not waited for forever [s]
@@ -96,6 +100,24 @@ def descendants(root: int) -> list[int]:
     return found
 
 
+def kill_marked(marker: str) -> list[int]:
+    """SIGKILL every process carrying the run's marker until none is left; returns the pids that would not die."""
+    deadline = time.monotonic() + _GIVE_UP_AFTER
+    while True:
+        marked = [pid for pid in marked_processes(marker) if pid != os.getpid() and not _exited(pid)]
+        if not marked or time.monotonic() > deadline:
+            return marked
+        for pid in marked:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, signal.SIGKILL)
+        time.sleep(_SETTLE_POLL)
+
+
+def _exited(pid: int) -> bool:
+    fields = _stat(pid)
+    return fields is None or (fields[0] == b"Z" and not _still_exiting(pid))
+
+
 def kill_processes(processes: set[tuple[int, int]]) -> None:
     """SIGKILL each (pid, start time) that is still that process."""
     for pid, started in processes:
@@ -129,15 +151,20 @@ def main() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     groups: set[int] = set()
     processes: set[tuple[int, int]] = set()
+    markers: set[str] = set()
     for line in sys.stdin:
         with contextlib.suppress(ValueError):
             words = line.split()
             if len(words) == 3 and words[0] == "pid":
                 processes.add((int(words[1]), int(words[2])))
+            elif len(words) == 2 and words[0] == "marker":
+                markers.add(words[1])
             else:
                 groups.add(int(line))
     kill_processes(processes)
     left = kill_groups(groups)
+    for marker in markers:
+        left += kill_marked(marker)
     if left:
         print(f"advsim reaper: processes {left} of the graph did not die", file=sys.stderr)
     print(f"advsim reaper: {clean_shared_memory()}", file=sys.stderr)

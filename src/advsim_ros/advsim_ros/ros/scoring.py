@@ -18,7 +18,7 @@ from advsim_ros.core.metrics import Predictions, actor_futures_at
 from advsim_ros.core.objective import ScorerSettings
 from advsim_ros.core.reactive import with_reactions
 from advsim_ros.core.scoring import Detections, QueryEvaluation, evaluate_query
-from advsim_ros.core.types import ActorTrack, DrivableArea, Scenario, ScenarioError, replace_actors
+from advsim_ros.core.types import ActorTrack, DrivableArea, Plan, Scenario, ScenarioError, replace_actors
 
 
 def _detections(record: TrackArrayRecord | None) -> Detections | None:
@@ -39,6 +39,21 @@ def _predictions(record: TrackArrayRecord | None, sim_offset_ns: int) -> Predict
     return Predictions(stamps - sim_offset_ns, np.stack([t.xyz[:, :2] for t in same]))
 
 
+def usable_plan(path: Any, world_frame: str, time_offset_ns: int = 0) -> Plan:
+    """The contract's plan in a nav_msgs/Path: in the world frame, finite, non-empty, increasing stamps.
+
+    ContractError naming what is wrong. A plan in another frame is refused, not scored as if it
+    were in the world frame (a stack profile converts frames: docs/stacks.md).
+    """
+    frame = str(path.header.frame_id)
+    if frame != world_frame:
+        raise ContractError(
+            f"the plan is in frame {frame!r}, the contract's plans are in the world frame {world_frame!r} "
+            "(publish it there, or describe the stack's frame in a stack profile: docs/stacks.md)"
+        )
+    return plan_from_path(path, time_offset_ns)
+
+
 def score_episode(
     episode: EpisodeRecord,
     moved: Sequence[ActorTrack],
@@ -48,6 +63,7 @@ def score_episode(
     settings: ScorerSettings,
     drivable: DrivableArea | None,
     wall_time: float,
+    world_frame: str,
 ) -> ScoreRecord:
     """The QueryScore of a finished query: a failure status from the outcome, else the evaluated plan."""
     common = {
@@ -58,6 +74,8 @@ def score_episode(
         "plan_digest": episode.plan_digest,
     }
     query_id = episode.query_id
+    if episode.outcome == Outcome.FOREIGN_PUBLISHER:
+        return ScoreRecord(query_id, Status.FOREIGN_PUBLISHER, episode.outcome_detail, **common)
     if episode.outcome == Outcome.STACK_LOST:
         reason = "the stack stopped during the query (its plan publisher vanished or was replaced: crash, restart)"
         return ScoreRecord(query_id, Status.STACK_ERROR, reason, **common)
@@ -73,7 +91,7 @@ def score_episode(
     try:
         if stamp_ns(episode.decision_plan.header.stamp) != decision_log + offset:
             raise ContractError("the decision plan is not stamped with the decision sweep's stamp")
-        plan = plan_from_path(episode.decision_plan, offset)
+        plan = usable_plan(episode.decision_plan, world_frame, offset)
         evaluation = evaluate_query(plan, scenario, moved, decision_frame, settings, drivable, detections, predictions)
     except ScenarioError as error:
         return ScoreRecord(query_id, Status.STACK_ERROR, f"unusable plan: {error}", **common)
