@@ -307,6 +307,7 @@ def test_sigint_and_sigterm_end_the_attack_with_one_line_their_exit_code_and_not
         ("not_a_bag", "not a rosbag2 folder (no metadata.yaml)"),
         ("remap", "remapping of /velodyne_points: not a topic of the contract"),
         ("parameter", "/perturber: unknown parameter(s) ['num_candidate']"),
+        ("out_is_a_file", "exists and is not a folder; give -o a folder"),
     ],
 )
 def test_bad_input_gets_one_line_naming_the_problem_and_starts_nothing(
@@ -322,10 +323,16 @@ def test_bad_input_gets_one_line_naming_the_problem_and_starts_nothing(
         "not_a_bag": [str(tmp_path / "empty")],
         "remap": [str(kitti_window_bag), "--remap-file", str(remap_file)],
         "parameter": [str(kitti_window_bag), "--param", "perturber.num_candidate=10"],
+        "out_is_a_file": [str(kitti_window_bag)],
     }[case]
+    if case == "out_is_a_file":
+        out.write_text("a file of the user's")
     result = advsim("attack", *arguments, "-o", str(out), timeout=120)
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, result.stderr
     assert expected in lines[0]
-    assert not out.exists()  # nothing started, nothing written
+    if case == "out_is_a_file":
+        assert out.read_text() == "a file of the user's"  # nothing lost
+    else:
+        assert not out.exists()  # nothing started, nothing written
