@@ -17,7 +17,7 @@ from advsim_ros.contract import names
 from advsim_ros.contract.codec import NS_PER_S, header_msg, message, stamp_ns
 from advsim_ros.contract.spatial import odometry_pose
 from advsim_ros.contract.tracks import TrackRecord, track_array_from_msg
-from advsim_ros.core.metrics import interpolate_trajectory
+from advsim_ros.core.futures import interpolate_trajectory
 from advsim_ros.core.types import ActorClass
 
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"

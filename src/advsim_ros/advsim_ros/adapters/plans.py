@@ -29,7 +29,7 @@ import numpy as np
 import pymap3d
 
 from advsim_ros.adapters.profile import Datum, PlanOutput
-from advsim_ros.core.metrics import NS_PER_S, interpolate_trajectory
+from advsim_ros.core.futures import NS_PER_S, interpolate_trajectory
 from advsim_ros.core.types import FloatArray, IntArray, Plan, ScenarioError
 
 
