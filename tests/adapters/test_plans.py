@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from advsim_ros.adapters.messages import plan_poses
 from advsim_ros.adapters.plans import (
     PlanarTransform,
     Poses,
@@ -16,6 +17,8 @@ from advsim_ros.adapters.plans import (
     geodetic_of,
 )
 from advsim_ros.adapters.profile import Datum, PlanOutput
+from advsim_ros.contract import names
+from advsim_ros.contract.codec import header_msg, message
 
 S = 5_000_000_000  # the sweep's stamp [ns]
 STEP = 100_000_000
@@ -122,3 +125,51 @@ def test_a_plan_frame_is_found_through_tf_in_either_direction_and_over_several_l
     assert (transform.x, transform.y, transform.yaw) == pytest.approx((10.0, 5.0, math.pi / 2))
     with pytest.raises(ValueError, match="no transform between world and base"):
         frame_transform(PlanOutput(frame_id="base", frame_origin="tf"), None, None, ("world", edges))
+
+
+def _quarter_circle(radius: float = 20.0, spacing: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Poses every `spacing` metres of arc on a left-turning quarter circle from the origin heading +x."""
+    angle = np.arange(0.0, math.pi / 2 + 1e-9, spacing / radius)
+    return radius * np.column_stack([np.sin(angle), 1.0 - np.cos(angle)]), angle
+
+
+def _path_msg(xy: np.ndarray, yaws: np.ndarray | None) -> object:
+    """A spatial nav_msgs/Path (poses unstamped); yaws None: positions only (identity orientations)."""
+    headings = np.zeros(xy.shape[0]) if yaws is None else yaws
+    poses = [
+        message(
+            names.POSE_STAMPED,
+            header=header_msg(0, "map"),
+            pose=message(
+                names.POSE,
+                position=message(names.POINT, x=float(x), y=float(y), z=0.0),
+                orientation=message(names.QUATERNION, x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+            ),
+        )
+        for (x, y), yaw in zip(xy.tolist(), headings.tolist(), strict=True)
+    ]
+    return message(names.PATH, header=header_msg(S, "map"), poses=poses)
+
+
+def test_a_spatial_path_without_orientations_gets_the_tangent_headings_of_its_curve() -> None:
+    xy, _ = _quarter_circle()
+    poses = plan_poses("spatial_path", _path_msg(xy, None))
+    assert not poses.oriented
+    plan = contract_plan(poses, S, S, 5.0, PlanOutput(type="spatial_path"), PlanarTransform())
+    driven = 5.0 * (plan.stamps_ns - S) / 1e9  # [m] along the arc; the heading of a circle is arc / radius
+    past_first_pose = driven >= 1.0  # the first pose takes its segment's direction: half a step's turn off
+    np.testing.assert_allclose(plan.yaws[past_first_pose], driven[past_first_pose] / 20.0, atol=1e-3)
+    assert plan.yaws[0] == pytest.approx(0.0375, abs=1e-3)  # halfway between 0.025 and the exact 0.05 at 1 m
+    assert plan.yaws[-1] == pytest.approx(1.25, abs=1e-3)  # 25 m into the turn: not the yaw 0 of identity quaternions
+
+
+def test_real_orientations_are_kept_unless_the_profile_asks_for_the_tangent() -> None:
+    xy, _ = _quarter_circle()
+    crabbing = np.full(xy.shape[0], 0.5)  # orientations the stack did give, not the tangent's
+    poses = plan_poses("spatial_path", _path_msg(xy, crabbing))
+    assert poses.oriented
+    kept = contract_plan(poses, S, S, 5.0, PlanOutput(type="spatial_path"), PlanarTransform())
+    np.testing.assert_allclose(kept.yaws, 0.5, atol=1e-12)
+    forced = contract_plan(poses, S, S, 5.0, PlanOutput(type="spatial_path", headings="tangent"), PlanarTransform())
+    driven = 5.0 * (forced.stamps_ns - S) / 1e9
+    np.testing.assert_allclose(forced.yaws[driven >= 1.0], driven[driven >= 1.0] / 20.0, atol=1e-3)

@@ -101,6 +101,8 @@ def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
         ("processes: [{command: a}]\noutputs: {detections: {type: boxes, topic: /d}}\n", "detections.type 'boxes'"),
         ("processes: [{command: a}]\noutputs: {plan: {reliability: fast, topic: /p}}\n", "reliability 'fast'"),
         ("processes: [{command: a}]\noutputs: {plan: {reliability: best_effort}}\n", "name yours"),
+        ("processes: [{command: a}]\noutputs: {plan: {headings: zero, topic: /p}}\n", "headings 'zero': one of auto"),
+        ("processes: [{command: a}]\noutputs: {plan: {headings: tangent}}\n", "name yours"),  # converted
         ("- a\n", "expected a mapping"),
         ("processes: [{command: 'a}]\n", "not valid YAML"),
     ],

@@ -12,8 +12,9 @@ from advsim_ros.core.closed_loop import (
     drive_closed_loop,
     executed_metrics,
 )
-from advsim_ros.core.metrics import ActorFutures, MetricsConfig, collision_steps
-from advsim_ros.core.types import EgoGeometry, Plan, ScenarioError
+from advsim_ros.core.futures import ActorFutures, actor_futures_at
+from advsim_ros.core.metrics import MetricsConfig, collision_steps
+from advsim_ros.core.types import ActorClass, ActorTrack, EgoGeometry, Plan, ScenarioError
 
 START_NS = 10 * NS_PER_S
 EGO = EgoGeometry()
@@ -149,3 +150,27 @@ def test_the_same_plans_drive_the_same_trajectory_and_bad_settings_are_named() -
         ControllerConfig(max_jerk=0.0)
     with pytest.raises(ScenarioError, match=r"replan period 0\.05 s is not a whole number"):
         drive_closed_loop(start, lambda now_ns, state: lane_change, START_NS, 1.0, 0.05, ControllerConfig(0.03))
+
+
+def _parked_from(first_s: float, x: float) -> ActorTrack:
+    """A 4.5 x 1.9 m car labelled at x (on the ego's line) from `first_s` after the start to 5 s, 10 Hz."""
+    times = np.arange(round(first_s * 10), 51) / 10.0
+    stamps = START_NS + np.round(times * NS_PER_S).astype(np.int64)
+    centers = np.tile([x, 0.0, 0.75], (times.size, 1))
+    return ActorTrack("late", ActorClass.VEHICLE, np.array([4.5, 1.9, 1.5]), stamps, centers, np.zeros(times.size))
+
+
+def test_an_actor_that_appears_late_is_hit_only_once_it_is_there() -> None:
+    late = _parked_from(4.0, 20.0)  # labelled from 4.0 s: box 17.75-22.25 m
+    start = VehicleState(0.0, 0.0, 0.0, 10.0, 0.0, 0.0)
+    passing = drive_closed_loop(start, lambda now_ns, s: _plan(now_ns, lambda t: (s.x + 10.0 * t, 0.0)), START_NS, 5.0)
+    metrics = executed_metrics(passing, actor_futures_at([late], passing.stamps_ns), EGO)
+    assert not metrics.collided  # it drove over that spot at ~2 s, before the car was there
+    assert metrics.min_distance > 10.0
+    assert metrics.min_time_to_collision == np.inf
+    standing = VehicleState(16.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the ego's box reaches x = 19.25 m
+    stop = Plan(START_NS + np.arange(1, 51) * NS_PER_S // 10, np.tile([[16.0, 0.0]], (50, 1)), np.zeros(50))
+    waiting = drive_closed_loop(standing, lambda now_ns, s: stop, START_NS, 5.0)
+    hit = executed_metrics(waiting, actor_futures_at([late], waiting.stamps_ns), EGO)
+    assert hit.collided
+    assert hit.collision_time == pytest.approx(3.96)  # the first 20 ms step within 0.05 s of its first label

@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from advsim_ros.core.futures import ActorFutures, actor_futures_at
 from advsim_ros.core.geometry import bev_iou
 from advsim_ros.core.metrics import (
-    ActorFutures,
     MetricsConfig,
     Predictions,
-    actor_futures_at,
     aggregate_metrics,
     average_precision,
     match_detections,
@@ -203,6 +202,62 @@ def test_actor_tracks_are_resampled_at_the_plan_stamps() -> None:
     np.testing.assert_allclose(futures.states[0, :, 0], 2.0 * np.arange(STEPS) * DT, atol=1e-9)
     np.testing.assert_allclose(futures.states[0, :, 2], 0.1 * np.arange(STEPS) * DT, atol=1e-9)
     np.testing.assert_array_equal(futures.sizes, [[4.0, 2.0]])
+
+
+DECISION_FRAME = 9  # the last of a window's 10 history frames: the plan's first stamp
+
+
+def _seen_from_frame(first_frame: int, x: float, y: float = 0.0, speed: float = 0.0) -> ActorTrack:
+    """A car labelled from window frame `first_frame` to frame 59, at (x, y) there and moving along x at `speed`."""
+    frames = np.arange(first_frame, 60)
+    times = (frames - DECISION_FRAME) * DT
+    centers = np.stack([x + speed * (times - times[0]), np.full(frames.size, y), np.zeros(frames.size)], axis=-1)
+    stamps = START_NS + np.round(times * 1e9).astype(np.int64)
+    return ActorTrack("late", ActorClass.VEHICLE, np.array([4.0, 2.0, 1.5]), stamps, centers, np.zeros(frames.size))
+
+
+def test_an_actor_observed_only_from_frame_49_never_collides_before_it_appears() -> None:
+    # The car appears 4.0 s after the decision at x = 20 m; the ego at 10 m/s overlaps that spot at 1.5-2.3 s.
+    late = actor_futures_at([_seen_from_frame(49, 20.0)], _stamps())
+    passing = query_metrics(_plan(_straight(10.0)), _human(_straight(10.0)), late, EGO, CONFIG)
+    assert np.isnan(passing.first_collision_time)
+    np.testing.assert_array_equal(passing.collision, [0.0, 0.0])
+    # Held at its first state (the old rule) it stood there from the decision on and was hit at 1.5 s.
+    held = ActorFutures(np.tile([20.0, 0.0, 0.0], (1, STEPS, 1)), late.sizes)
+    held_metrics = query_metrics(_plan(_straight(10.0)), _human(_straight(10.0)), held, EGO, CONFIG)
+    assert held_metrics.first_collision_time == pytest.approx(1.5)
+
+
+def test_an_actor_collides_once_it_is_there() -> None:
+    # The ego stands with its box at x = 14.75-19.25 m, the car's is 18-22 m: contact from its first label at 4.0 s.
+    standing = _plan(np.tile([16.0, 0.0], (STEPS, 1)))
+    late = actor_futures_at([_seen_from_frame(49, 20.0)], _stamps())
+    metrics = query_metrics(standing, _human(standing.xy), late, EGO, CONFIG)
+    assert metrics.first_collision_time == pytest.approx(4.0)
+    np.testing.assert_array_equal(metrics.collision, [0.0, 1.0])
+
+
+def test_an_actor_exists_half_a_frame_beyond_its_labels_at_constant_velocity() -> None:
+    track = _seen_from_frame(49, 20.0, speed=10.0)  # labelled 4.0-5.0 s after the decision, 10 m/s along x
+    first, last = int(track.stamps_ns[0]), int(track.stamps_ns[-1])
+    offsets = np.array([-60, -50, -10, 0, 10, 50, 60]) * 1_000_000  # [ns] around the first and the last label
+    futures = actor_futures_at([track], np.concatenate([first + offsets[:4], last + offsets[4:]]))
+    np.testing.assert_array_equal(futures.present[0], [False, True, True, True, True, True, False])
+    np.testing.assert_allclose(futures.states[0, 1:6, 0], [19.5, 19.9, 20.0, 30.1, 30.5], atol=1e-9)
+    assert np.all(np.isnan(futures.states[0, [0, 6]]))  # absent: no state to read, held or otherwise
+    strict = actor_futures_at([track], np.array([first - 10_000_000, first]), extrapolation=0.0)
+    np.testing.assert_array_equal(strict.present[0], [False, True])
+    with pytest.raises(ScenarioError, match=r"MetricsConfig.actor_extrapolation: must be in \[0, 0.5\] s"):
+        MetricsConfig(actor_extrapolation=1.0)
+
+
+def test_an_actor_that_appears_later_is_no_ground_truth_for_predictions_before() -> None:
+    # A prediction starting at the decision where the car will only appear 4 s later matches nothing.
+    late = actor_futures_at([_seen_from_frame(49, 20.0)], _stamps(51))
+    plan = Plan(_stamps(51), np.zeros((51, 2)), np.zeros(51))
+    predictions = Predictions(_stamps(51), np.tile([20.0, 0.0], (1, 51, 1)))
+    metrics = query_metrics(plan, _human(np.zeros((51, 2))), late, EGO, CONFIG, predictions=predictions)
+    assert np.all(np.isnan(metrics.prediction_l2))
 
 
 def test_bev_iou_of_shifted_crossed_and_disjoint_boxes() -> None:

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from advsim_ros.core.metrics import ActorFutures
+from advsim_ros.core.futures import ActorFutures, actor_futures_at
+from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.objective import (
     PRESET_NAMES,
     ObjectiveConfig,
@@ -18,7 +19,16 @@ from advsim_ros.core.objective import (
     scorer_settings_from_params,
 )
 from advsim_ros.core.params import ParamsError
-from advsim_ros.core.types import DrivableArea, EgoGeometry, EgoTrajectory, Plan, RoadMap, ScenarioError
+from advsim_ros.core.types import (
+    ActorClass,
+    ActorTrack,
+    DrivableArea,
+    EgoGeometry,
+    EgoTrajectory,
+    Plan,
+    RoadMap,
+    ScenarioError,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 DT = 0.1  # [s]
@@ -134,6 +144,24 @@ def test_presets_switch_terms_and_the_full_objective_is_their_weighted_sum() -> 
     )
 
 
+def test_an_actor_costs_nothing_and_is_not_close_before_it_first_appears() -> None:
+    # A 4.5 x 1.9 m car labelled from 4.0 s after the decision on, standing at x = 20 m (box 17.75-22.25 m).
+    # The ego at 10 m/s (box from x - 1.25 to x + 3.25 m) drives through that spot at 1.5-2.3 s; at 4.0 s
+    # its rear is at 38.75 m: 16.5 m past the car.
+    stamps = START_NS + np.round(np.arange(40, 51) * DT * 1e9).astype(np.int64)
+    car = ActorTrack("late", ActorClass.VEHICLE, np.array([4.5, 1.9, 1.5]), stamps, np.tile([20.0, 0.0, 0.0], (11, 1)),
+                     np.zeros(11))  # fmt: skip
+    plan, human = _plan(_straight()), _human(_straight())
+    late = actor_futures_at([car], plan.stamps_ns)
+    terms = evaluate_objective(plan, human, late, EGO, CONFIG)
+    assert terms.collision == 0.0
+    assert terms.closest_distance == pytest.approx(16.5)
+    baseline = evaluate_objective(plan, human, late, EGO, objective_preset("closest_distance"))
+    assert baseline.value == pytest.approx(-16.5)
+    held = ActorFutures(np.tile([20.0, 0.0, 0.0], (1, STEPS, 1)), late.sizes)  # the old rule: there from the start
+    assert evaluate_objective(plan, human, held, EGO, CONFIG).collision > 8.0
+
+
 def test_closest_distance_baseline_is_minus_the_smallest_gap() -> None:
     plan, human = _plan(_straight()), _human(_straight())
     config = objective_preset("closest_distance")
@@ -180,6 +208,7 @@ def test_objective_config_names_the_bad_key() -> None:
 def test_the_scorer_parameters_file_loads_into_the_full_objective() -> None:
     settings = load_scorer_settings(REPO / "params" / "scorer.yaml")
     assert settings.objective == ObjectiveConfig()
+    assert settings.metrics == MetricsConfig()  # the file holds every metrics default (actor_extrapolation too)
     assert settings.metrics.horizons == (3.0, 5.0)
     assert settings.metrics.x_range == (-72.0, 72.0)
     assert set(PRESET_NAMES) >= {"M0", "M5"}

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from advsim_ros.core.closed_loop import NS_PER_S, ControllerConfig, VehicleState, drive_closed_loop
+from advsim_ros.core.futures import actor_futures_at
 from advsim_ros.core.geometry import box_distance, boxes_overlap
 from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.lidar.boxes import yaw_pose
-from advsim_ros.core.metrics import actor_futures_at
 from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.reactive import IdmConfig, ReactiveTraffic, with_overrides, with_reactions
 from advsim_ros.core.types import ActorClass, ActorTrack, EgoGeometry, EgoTrajectory, Plan, ScenarioError
@@ -117,6 +117,20 @@ def test_an_actor_the_ego_does_not_bother_drives_its_track_exactly() -> None:
         np.testing.assert_array_equal(drive.yaws, expected[:, 2])
     # and the world with reactions spliced in is the non-reactive one
     assert with_reactions((beside, far_behind, ahead), traffic.drives()) == (beside, far_behind, ahead)
+
+
+def test_a_reacting_actor_ends_where_its_track_ends() -> None:
+    ego = _ego_drive(brake_at=1.0)
+    full = _follower(8.0)
+    ends = 31  # labelled up to 3.0 s: the drive must not hold it (or run it on) past that
+    short = ActorTrack("follower", ActorClass.VEHICLE, CAR, STAMPS[:ends], full.centers[:ends], full.yaws[:ends])
+    traffic = _run([short], ego)
+    (drive,) = traffic.drives()  # it reacted (the ego brakes at 1 s)
+    assert drive.stamps_ns[-1] == STAMPS[ends - 1]
+    assert traffic.off_track() == ()  # at 5 s it is gone, reacting or not
+    spliced = with_reactions([short], [drive])[0]
+    assert spliced.stamps_ns[-1] == STAMPS[ends - 1]
+    assert not actor_futures_at([spliced], np.array([STAMPS[ends - 1] + NS_PER_S])).present.any()
 
 
 def test_the_same_drive_gives_the_same_reactions() -> None:

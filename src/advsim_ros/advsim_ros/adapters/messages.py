@@ -15,9 +15,10 @@ from advsim_ros.adapters.plans import PlanarTransform, Poses, geodetic_of, yaw_o
 from advsim_ros.adapters.profile import Datum
 from advsim_ros.contract import names
 from advsim_ros.contract.codec import NS_PER_S, header_msg, message, stamp_ns
+from advsim_ros.contract.plan import without_orientation
 from advsim_ros.contract.spatial import odometry_pose
 from advsim_ros.contract.tracks import TrackRecord, track_array_from_msg
-from advsim_ros.core.metrics import interpolate_trajectory
+from advsim_ros.core.futures import interpolate_trajectory
 from advsim_ros.core.types import ActorClass
 
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
@@ -53,35 +54,36 @@ POSE_MSGTYPES = {
 }
 
 
-def _poses(items: list[Any]) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) positions and (N,) headings of geometry_msgs/Pose objects."""
+def _poses(items: list[Any]) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(N, 2) positions and (N,) headings of geometry_msgs/Pose objects, and whether they carry orientations."""
     values = np.array(
         [[p.position.x, p.position.y, *(getattr(p.orientation, axis) for axis in "xyzw")] for p in items],
         dtype=np.float64,
     ).reshape(-1, 6)
-    return values[:, :2], yaw_of_quaternion(values[:, 2], values[:, 3], values[:, 4], values[:, 5])
+    yaws = yaw_of_quaternion(values[:, 2], values[:, 3], values[:, 4], values[:, 5])
+    return values[:, :2], yaws, not without_orientation(values[:, 2:])
 
 
 def plan_poses(kind: str, msg: Any) -> Poses:
     """The poses of a stack's answer of profile type ``kind`` (timed when the message carries times)."""
     if kind in ("path", "spatial_path"):
-        xy, yaws = _poses([stamped.pose for stamped in msg.poses])
+        xy, yaws, oriented = _poses([stamped.pose for stamped in msg.poses])
         stamps = np.array([stamp_ns(stamped.header.stamp) for stamped in msg.poses], dtype=np.int64)
         timed = kind == "path" and stamps.size > 0 and bool(np.all(stamps > 0))
-        return Poses(xy, yaws, stamps_ns=stamps if timed else None)
+        return Poses(xy, yaws, stamps_ns=stamps if timed else None, oriented=oriented)
     if kind == "pose_array":
-        xy, yaws = _poses(list(msg.poses))
-        return Poses(xy, yaws)
+        xy, yaws, oriented = _poses(list(msg.poses))
+        return Poses(xy, yaws, oriented=oriented)
     if kind == "autoware_trajectory":
         points = list(msg.points)
-        xy, yaws = _poses([point.pose for point in points])
+        xy, yaws, oriented = _poses([point.pose for point in points])
         offsets = np.array(
             [int(p.time_from_start.sec) * NS_PER_S + int(p.time_from_start.nanosec) for p in points], dtype=np.int64
         )
         if offsets.size > 1 and bool(np.all(np.diff(offsets) > 0)):
-            return Poses(xy, yaws, stamps_ns=stamp_ns(msg.header.stamp) + offsets)
+            return Poses(xy, yaws, stamps_ns=stamp_ns(msg.header.stamp) + offsets, oriented=oriented)
         speeds = np.array([p.longitudinal_velocity_mps for p in points], dtype=np.float64)
-        return Poses(xy, yaws, speeds=speeds)
+        return Poses(xy, yaws, speeds=speeds, oriented=oriented)
     raise ValueError(f"unknown plan type {kind!r}")
 
 

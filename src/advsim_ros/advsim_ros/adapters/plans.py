@@ -6,12 +6,23 @@ world frame. Stacks answer otherwise; each shape is brought to that one by a sta
 - timed poses (nav_msgs/Path with per-pose stamps, Autoware trajectories with time_from_start)
   keep their times;
 - untimed poses (a spatial nav_msgs/Path, a PoseArray, an Autoware trajectory with only
-  speeds) are driven along from the start of the path: with the stack's own speeds where the
-  message has them (time by trapezoidal integration of distance over speed), else from the
-  ego's speed at the plan's time, changing by the profile's constant ``acceleration`` and held
-  in [0, ``max_speed``];
+  speeds) are driven along from where the ego was when the adapter last heard of it before the
+  plan was made (the latest odometry, its position projected onto the path, the first segment
+  going on backwards when the ego is behind the path's start), from that odometry's time: with
+  the stack's own speeds where the message has them (time by trapezoidal integration of
+  distance over speed), else from the ego's speed then, changing by the profile's constant
+  ``acceleration`` and held in [0, ``max_speed``]. A stack plans from the pose it knows, which
+  is older than the plan: anchored at the plan's own time, the ego would stand at the path's
+  start for that age (the decision delay of a timer-driven stack) and the jerk of that made-up
+  stop would dominate the comfort terms. Without odometry the path is driven from its start at
+  the plan's time;
 - past the end of a path the ego stands at its last pose (a path that ends is one that stops);
-  before the first pose (a plan made after the grid's first time) it stands at the first.
+  before the first pose reached it drives on the line of the path's start at its starting speed
+  (the constant velocity of the first two timed poses; the rule's speed for untimed ones),
+  never standing at the first pose;
+- headings come from the path's tangent (core.geometry.tangent_headings) when every pose's
+  orientation is the identity (a path of positions only) or the profile's ``headings`` is
+  ``tangent``; else from the orientations.
 
 Positions are interpolated linearly in time, headings along the shortest turn. Frames: a plan in
 another frame is moved into the world by a planar transform (a static pose, the east-north-up
@@ -29,7 +40,8 @@ import numpy as np
 import pymap3d
 
 from advsim_ros.adapters.profile import Datum, PlanOutput
-from advsim_ros.core.metrics import NS_PER_S, interpolate_trajectory
+from advsim_ros.core.futures import NS_PER_S, interpolate_trajectory
+from advsim_ros.core.geometry import tangent_headings
 from advsim_ros.core.types import FloatArray, IntArray, Plan, ScenarioError
 
 
@@ -41,6 +53,7 @@ class Poses:
     yaws: FloatArray  # (N,) [rad]
     stamps_ns: IntArray | None = None  # (N,) absolute times of the poses, when the message has them
     speeds: FloatArray | None = None  # (N,) the stack's own speeds at the poses [m/s], when it has them
+    oriented: bool = True  # False when every pose's orientation was the identity: the yaws say nothing
 
     def __post_init__(self) -> None:
         count = self.xy.shape[0]
@@ -157,40 +170,113 @@ def _driven_times(arc: FloatArray, speeds: FloatArray) -> FloatArray:
 
 
 def _rule_distance(wanted: FloatArray, ego_speed: float, output: PlanOutput) -> FloatArray:
-    """Distance driven by each wanted time [s] from ego_speed at the profile's acceleration, within [0, max_speed]."""
-    speed_at = np.clip(max(ego_speed, 0.0) + output.acceleration * np.maximum(wanted, 0.0), 0.0, output.max_speed)
+    """Distance driven by each wanted time [s] from ego_speed at the profile's acceleration, within [0, max_speed].
+
+    Before time 0 the ego drove at its speed then (negative distances): it did not stand and wait.
+    """
+    start = min(max(ego_speed, 0.0), output.max_speed)
+    t = np.maximum(wanted, 0.0)
+    backwards = start * np.minimum(wanted, 0.0)
     if output.acceleration == 0.0:
-        distance: FloatArray = speed_at * np.maximum(wanted, 0.0)
+        distance: FloatArray = start * t + backwards
         return distance
     # piecewise: accelerate (or brake) until the speed limit (or a stop), then hold that speed
-    start = min(max(ego_speed, 0.0), output.max_speed)
     limit = output.max_speed if output.acceleration > 0.0 else 0.0
     switch = (limit - start) / output.acceleration
-    t = np.maximum(wanted, 0.0)
     ramp = np.minimum(t, switch)
-    distance = start * ramp + 0.5 * output.acceleration * ramp**2 + limit * np.maximum(t - switch, 0.0)
+    distance = start * ramp + 0.5 * output.acceleration * ramp**2 + limit * np.maximum(t - switch, 0.0) + backwards
     return distance
 
 
-def _along(poses: Poses, distance: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Positions and headings at these distances along the path (held at its ends)."""
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses.xy, axis=0), axis=1))])
-    if arc[-1] <= 0.0:
-        return np.repeat(poses.xy[:1], distance.shape[0], axis=0), np.repeat(poses.yaws[:1], distance.shape[0])
+def _path(xy: FloatArray, yaws: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The path without repeated poses: arc lengths [m] (strictly increasing), positions and unwrapped headings."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
     keep = np.concatenate([[True], np.diff(arc) > 0.0])  # repeated poses would make arc length not increase
-    arc, xy, yaws = arc[keep], poses.xy[keep], np.unwrap(poses.yaws[keep])
-    x = np.interp(distance, arc, xy[:, 0])
-    y = np.interp(distance, arc, xy[:, 1])
-    return np.column_stack([x, y]), np.interp(distance, arc, yaws)
+    return arc[keep], xy[keep], np.unwrap(yaws[keep])
 
 
-def timed(poses: Poses, plan_stamp_ns: int) -> FloatArray:
-    """Times [s] after plan_stamp_ns at which the stack's timed or speed-annotated poses are reached (inf: never)."""
-    if poses.stamps_ns is not None:
-        return (poses.stamps_ns - plan_stamp_ns).astype(np.float64) / NS_PER_S
-    assert poses.speeds is not None
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses.xy, axis=0), axis=1))])
-    return _driven_times(arc, np.maximum(poses.speeds, 0.0))
+def _along(xy: FloatArray, yaws: FloatArray, distance: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Positions and headings at these distances along the path: held past its end, and before its start
+    (negative distances) on the straight line of its first segment, heading held."""
+    arc, points, headings = _path(xy, yaws)
+    if arc.shape[0] < 2:
+        return np.repeat(xy[:1], distance.shape[0], axis=0), np.repeat(yaws[:1], distance.shape[0])
+    x = np.interp(distance, arc, points[:, 0])
+    y = np.interp(distance, arc, points[:, 1])
+    out = np.column_stack([x, y])
+    behind = distance < 0.0
+    direction = (points[1] - points[0]) / arc[1]
+    out[behind] = points[0] + distance[behind, None] * direction
+    return out, np.interp(distance, arc, headings)
+
+
+def arc_of(point: FloatArray, xy: FloatArray) -> float:
+    """Arc length [m] of the path point nearest ``point``; the first segment goes on backwards, so a point
+    behind the path's start has a negative one (0 for a path that does not move)."""
+    arc, points, _ = _path(xy, np.zeros(xy.shape[0]))
+    if arc.shape[0] < 2:
+        return 0.0
+    starts, segments, lengths = points[:-1], np.diff(points, axis=0), np.diff(arc)
+    fraction = np.einsum("ij,ij->i", point - starts, segments) / lengths**2
+    fraction = np.clip(fraction, np.where(np.arange(fraction.shape[0]) == 0, -np.inf, 0.0), 1.0)
+    distances = np.linalg.norm(starts + fraction[:, None] * segments - point, axis=1)
+    index = int(np.argmin(distances))
+    return float(arc[index] + fraction[index] * lengths[index])
+
+
+def _untimed_distance(
+    xy: FloatArray, speeds: FloatArray | None, wanted: FloatArray, start: float, ego_speed: float, output: PlanOutput
+) -> FloatArray:
+    """Distance along a path without times at each wanted time [s] after the ego was at arc length ``start``.
+
+    By the profile's speed rule, or by the stack's own speeds: its timeline (from the path's start,
+    trapezoidal) shifted so that it is at ``start`` at time 0, at its first speed before its start.
+    """
+    if speeds is None:
+        return start + _rule_distance(wanted, ego_speed, output)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    times = _driven_times(arc, np.maximum(speeds, 0.0))
+    reached = np.isfinite(times)
+    first_speed = max(float(speeds[0]), 0.0)
+    if start >= 0.0:
+        at_start = float(np.interp(start, arc[reached], times[reached]))
+    else:
+        at_start = start / first_speed if first_speed > 1e-3 else 0.0
+    clock = wanted + at_start
+    distance: FloatArray = np.interp(clock, times[reached], arc[reached])
+    return np.where(clock < 0.0, first_speed * clock, distance)
+
+
+def _on_times(
+    stamps_ns: IntArray, xy: FloatArray, yaws: FloatArray, query_ns: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    """Timed poses at query stamps, linear in time: held after the last, and before the first continued back at
+    the constant velocity of the first two (heading held), so that no standstill is made up before the plan."""
+    out_xy, out_yaws, _ = interpolate_trajectory(stamps_ns, xy, yaws, query_ns)
+    early = query_ns < stamps_ns[0]
+    if np.any(early) and stamps_ns.shape[0] >= 2:
+        velocity = (xy[1] - xy[0]) / (float(stamps_ns[1] - stamps_ns[0]) / NS_PER_S)
+        ahead = (query_ns[early] - stamps_ns[0]).astype(np.float64) / NS_PER_S
+        out_xy[early] = xy[0] + ahead[:, None] * velocity
+    return out_xy, out_yaws
+
+
+@dataclass(frozen=True)
+class EgoAt:
+    """Where the ego was, as the adapter last heard before a plan was made (the contract's odometry)."""
+
+    stamp_ns: int  # the odometry's stamp [ns]
+    xy: FloatArray  # (2,) position in the world frame [m]
+
+
+def ego_before(odometry: Mapping[int, tuple[float, FloatArray]], made_ns: int) -> tuple[float, EgoAt | None]:
+    """The ego's speed [m/s] and position from the latest odometry (stamp -> (speed, world xy)) at or before
+    made_ns; (0, None) when none is known."""
+    known = [stamp for stamp in odometry if stamp <= made_ns]
+    if not known:
+        return 0.0, None
+    speed, xy = odometry[max(known)]
+    return speed, EgoAt(max(known), xy)
 
 
 def contract_plan(
@@ -200,17 +286,23 @@ def contract_plan(
     ego_speed: float,
     output: PlanOutput,
     transform: PlanarTransform,
+    ego: EgoAt | None = None,
 ) -> Plan:
-    """The contract's plan for the sweep stamped sweep_stamp_ns from what the stack answered at plan_stamp_ns."""
+    """The contract's plan for the sweep stamped sweep_stamp_ns from what the stack answered at plan_stamp_ns.
+
+    ``ego``: where the ego was when last heard of before the plan was made (``ego_before``); a path
+    without times is driven from there, from then (module docstring). Without it, from the path's start
+    at plan_stamp_ns.
+    """
     step_ns = round(output.step * NS_PER_S)
     stamps = sweep_stamp_ns + step_ns * np.arange(1, output.num_steps + 1, dtype=np.int64)
-    wanted = (stamps - plan_stamp_ns).astype(np.float64) / NS_PER_S
-    if poses.stamps_ns is None and poses.speeds is None:  # a path and nothing more: the speed rule drives it
-        xy, yaws = _along(poses, _rule_distance(wanted, ego_speed, output))
-    else:  # held before the first and after the last pose reached
-        times = timed(poses, plan_stamp_ns)
-        reached = np.isfinite(times)
-        reached_ns = plan_stamp_ns + np.round(times[reached] * NS_PER_S).astype(np.int64)
-        xy, yaws, _ = interpolate_trajectory(reached_ns, poses.xy[reached], poses.yaws[reached], stamps)
-    world_xy, world_yaws = transform.apply(xy, yaws)
-    return Plan(stamps_ns=stamps, xy=world_xy, yaws=np.arctan2(np.sin(world_yaws), np.cos(world_yaws)))
+    tangent = output.headings == "tangent" or not poses.oriented
+    yaws = tangent_headings(poses.xy, poses.yaws) if tangent else poses.yaws
+    xy, yaws = transform.apply(poses.xy, yaws)  # into the world first: the ego's position is there
+    if poses.stamps_ns is not None:
+        plan_xy, plan_yaws = _on_times(poses.stamps_ns, xy, yaws, stamps)
+    else:
+        origin_ns, start = (ego.stamp_ns, arc_of(ego.xy, xy)) if ego is not None else (plan_stamp_ns, 0.0)
+        wanted = (stamps - origin_ns).astype(np.float64) / NS_PER_S
+        plan_xy, plan_yaws = _along(xy, yaws, _untimed_distance(xy, poses.speeds, wanted, start, ego_speed, output))
+    return Plan(stamps_ns=stamps, xy=plan_xy, yaws=np.arctan2(np.sin(plan_yaws), np.cos(plan_yaws)))

@@ -17,7 +17,7 @@ as it is. Loading validates everything and refuses a bad profile with one line n
       pose: {type: navsatfix, topic: /fix, datum: {latitude: 49.01, longitude: 8.42, altitude: 110.0}}
       topics: {/tf: /tf}
     outputs:
-      plan: {type: spatial_path, topic: /planner/path, frame_id: map, frame_origin: first_fix}
+      plan: {type: spatial_path, topic: /planner/path, frame_id: map, frame_origin: first_fix, headings: auto}
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ PREDICTION_TYPES = ("actor_tracks", "autoware_predicted_objects")
 POSE_TYPES = ("odometry", "pose_stamped", "pose_with_covariance_stamped", "navsatfix")
 TIMING_MODES = ("per_sweep", "timer")
 PLAN_STAMPS = ("header", "arrival")
+PLAN_HEADINGS = ("auto", "tangent")
 FRAME_ORIGINS = ("world", "static", "first_fix", "datum", "tf")
 RELIABILITIES = ("reliable", "best_effort")  # how the stack publishes an answer (the graph's own reads are reliable)
 # Contract inputs a profile may give other names (LiDAR and pose have sections of their own)
@@ -206,11 +207,14 @@ class PlanOutput:
     horizon: float = 5.0  # the contract plan's length [s]
     step: float = 0.1  # the contract plan's pose spacing [s]
     reliability: str = "reliable"  # QoS the stack publishes with (best_effort: the adapter reads it so)
+    headings: str = "auto"  # auto: from the path's tangent when every orientation is the identity; tangent: always
 
     def __post_init__(self) -> None:
         _reliability(self.reliability)
         if self.type not in PLAN_TYPES:
             raise ScenarioError(f"type {self.type!r}: one of {', '.join(PLAN_TYPES)}")
+        if self.headings not in PLAN_HEADINGS:
+            raise ScenarioError(f"headings {self.headings!r}: one of {', '.join(PLAN_HEADINGS)}")
         _topic_name(self.topic, "topic")
         if self.frame_origin not in FRAME_ORIGINS:
             raise ScenarioError(f"frame_origin {self.frame_origin!r}: one of {', '.join(FRAME_ORIGINS)}")
@@ -296,9 +300,9 @@ class StackProfile:
                 )
 
     def plan_converted(self) -> bool:
-        """Whether the plan is converted (type, frame or timing), not just relayed."""
+        """Whether the plan is converted (type, frame, timing or headings), not just relayed."""
         plan = self.outputs.plan
-        return plan.type != "path" or plan.frame_origin != "world" or self.timing.timer
+        return plan.type != "path" or plan.frame_origin != "world" or self.timing.timer or plan.headings != "auto"
 
     def objects_converted(self, output: ObjectsOutput, contract: str) -> bool:
         """Whether detections or predictions are converted: another type, or restamped for a timer-driven

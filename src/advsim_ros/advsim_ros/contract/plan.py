@@ -18,7 +18,8 @@ from advsim_ros.contract.codec import (
     message,
     stamp_ns,
 )
-from advsim_ros.core.types import Plan
+from advsim_ros.core.geometry import tangent_headings
+from advsim_ros.core.types import FloatArray, Plan
 
 PLAN_STEP_NS = 100_000_000  # poses stamped 0 (stacks that stamp only the header) are taken this far apart [ns]
 
@@ -52,10 +53,18 @@ def path_cdr(plan: Plan, header_stamp_ns: int, frame_id: str, z: float = 0.0) ->
     return CDR_LE_HEADER + bytes(payload)
 
 
+def without_orientation(quaternions: FloatArray) -> bool:
+    """Whether (N, 4) quaternions [x, y, z, w] say nothing about heading: every one is the identity (or all
+    zeros, never filled in), as in spatial paths whose poses carry positions only."""
+    return bool(np.all(quaternions[:, :3] == 0.0))
+
+
 def plan_from_path(path: Any, time_offset_ns: int = 0) -> Plan:
     """A nav_msgs/Path (rclpy or rosbags object) as a Plan, pose stamps shifted by -time_offset_ns.
 
     Poses stamped 0 (stacks that stamp only the header) are taken as 0.1 s apart after the header.
+    A path whose every orientation is the identity carries no headings: they come from the path's
+    tangent (core.geometry.tangent_headings), not a heading of 0 for every pose.
     ContractError for an empty path, non-finite poses or stamps that do not increase.
     """
     poses = path.poses
@@ -75,4 +84,6 @@ def plan_from_path(path: Any, time_offset_ns: int = 0) -> Plan:
         raise ContractError("the plan's pose stamps are not strictly increasing")
     x, y, z, w = quaternions.T
     yaws = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    if without_orientation(quaternions):
+        yaws = tangent_headings(xy, yaws)
     return Plan(stamps_ns=stamps - time_offset_ns, xy=xy, yaws=yaws)

@@ -27,8 +27,9 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from advsim_ros.core.futures import ActorFutures, BoolArray, interpolate_trajectory
 from advsim_ros.core.geometry import box_distance, boxes_overlap, wrap_angle
-from advsim_ros.core.metrics import NS_PER_S, ActorFutures, interpolate_trajectory, trajectory_kinematics
+from advsim_ros.core.metrics import NS_PER_S, trajectory_kinematics
 from advsim_ros.core.types import EgoGeometry, FloatArray, Plan, ScenarioError
 
 STOP_SPEED = 0.3  # below this, a plan that stands is met by braking to a halt [m/s]
@@ -256,9 +257,10 @@ def executed_metrics(
 ) -> ClosedLoopMetrics:
     """Collision, gaps, time to collision, progress and comfort of what the ego drove.
 
-    ``actors`` must hold one state per executed stamp. Time to collision at a step
-    extrapolates the ego and every actor at their current velocities (finite differences of
-    their poses) up to ``ttc_horizon_s`` and takes the first overlap.
+    ``actors`` must hold one state per executed stamp; an actor counts only at the stamps where it
+    exists. Time to collision at a step extrapolates the ego and every actor present then and at the
+    next step at their current velocities (finite differences of their poses) up to ``ttc_horizon_s``
+    and takes the first overlap.
     """
     if actors.states.shape[1] != executed.stamps_ns.shape[0]:
         raise ScenarioError(
@@ -276,12 +278,12 @@ def executed_metrics(
     }
     if actors.num_actors == 0:
         return ClosedLoopMetrics(False, np.inf, np.inf, np.inf, progress, **comfort)
-    actor_boxes = actors.boxes()
-    overlapping = boxes_overlap(actor_boxes, ego_boxes[None]).any(axis=0)
+    actor_boxes, present = actors.finite_boxes(), actors.present
+    overlapping = (boxes_overlap(actor_boxes, ego_boxes[None]) & present).any(axis=0)
     hits = np.flatnonzero(overlapping)
     collision_time = float(times[hits[0]]) if hits.size else np.inf
-    min_distance = float(box_distance(actor_boxes, ego_boxes[None]).min())
-    ttc = _time_to_collision(times, ego_boxes, actor_boxes, ttc_horizon_s, ttc_step_s)
+    min_distance = float(np.where(present, box_distance(actor_boxes, ego_boxes[None]), np.inf).min())
+    ttc = _time_to_collision(times, ego_boxes, actor_boxes, present, ttc_horizon_s, ttc_step_s)
     return ClosedLoopMetrics(bool(hits.size), collision_time, min_distance, ttc, progress, **comfort)
 
 
@@ -290,9 +292,12 @@ def _largest(values: FloatArray) -> float:
 
 
 def _time_to_collision(
-    times: FloatArray, ego_boxes: FloatArray, actor_boxes: FloatArray, horizon: float, step: float
+    times: FloatArray, ego_boxes: FloatArray, actor_boxes: FloatArray, present: BoolArray, horizon: float, step: float
 ) -> float:
-    """Smallest constant-velocity time to collision over the run [s] (inf when none within the horizon)."""
+    """Smallest constant-velocity time to collision over the run [s] (inf when none within the horizon).
+
+    An actor is extrapolated from a step only when it exists then and at the next (its velocity needs both).
+    """
     if times.shape[0] < 2:
         return np.inf
     dt = np.diff(times)[:, None]
@@ -303,6 +308,7 @@ def _time_to_collision(
     ego_future[..., :2] += ego_velocity[:, None, :] * ahead[None, :, None]
     actor_future = np.repeat(actor_boxes[:, :-1, None, :], ahead.shape[0], axis=2)  # (N, K-1, L, 5)
     actor_future[..., :2] += actor_velocity[:, :, None, :] * ahead[None, None, :, None]
-    overlapping = np.any(boxes_overlap(actor_future, ego_future[None]), axis=0)  # (K-1, L)
+    moving = present[:, :-1] & present[:, 1:]  # (N, K-1)
+    overlapping = np.any(boxes_overlap(actor_future, ego_future[None]) & moving[:, :, None], axis=0)  # (K-1, L)
     first = np.where(np.any(overlapping, axis=1), ahead[np.argmax(overlapping, axis=1)], np.inf)
     return float(first.min())

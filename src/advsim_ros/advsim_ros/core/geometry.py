@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from advsim_ros.core.types import ScenarioError
+from advsim_ros.core.types import FloatArray, ScenarioError
 
 AnyFloatArray = npt.NDArray[np.floating[Any]]
 BoolArray = npt.NDArray[np.bool_]
@@ -170,3 +170,36 @@ def bev_iou(a: npt.ArrayLike, b: npt.ArrayLike) -> AnyFloatArray:
     areas_b = box_b[overlapping][:, 3] * box_b[overlapping][:, 4]
     iou[overlapping] = intersection / (areas_a + areas_b - intersection)
     return iou
+
+
+SAME_POINT = 1e-6  # points of a path closer than this do not give it a direction [m]
+
+
+def tangent_headings(xy: npt.ArrayLike, fallback: npt.ArrayLike) -> FloatArray:
+    """(N,) heading of a path's tangent at each of its (N, 2) points [rad], for poses that carry none.
+
+    At an inner point the direction from the point before to the point after (exact on an evenly
+    sampled circle or line), at the ends that of the end segment. A point the path does not move
+    around (a standstill) takes the heading of the nearest point that has one, the earlier on a tie;
+    a path that never moves keeps ``fallback`` (N,). The path is taken as driven forwards: a
+    reversing stretch gets headings a half turn from the vehicle's.
+    """
+    points = np.asarray(xy, dtype=np.float64)
+    kept = np.array(fallback, dtype=np.float64)
+    count = points.shape[0]
+    if count < 2:
+        return kept
+    after = np.vstack([points[1:], points[-1:]])
+    before = np.vstack([points[:1], points[:-1]])
+    chord = after - before
+    moving = np.hypot(chord[:, 0], chord[:, 1]) > SAME_POINT
+    if not np.any(moving):
+        return kept
+    headings = np.arctan2(chord[:, 1], chord[:, 0])
+    index = np.arange(count)
+    earlier = np.maximum.accumulate(np.where(moving, index, -1))  # nearest moving point at or before
+    later = np.minimum.accumulate(np.where(moving, index, count)[::-1])[::-1]  # ... at or after
+    use_later = (earlier < 0) | ((later < count) & (later - index < index - earlier))
+    nearest = np.where(use_later, later, earlier)
+    result: FloatArray = headings[nearest]
+    return result

@@ -12,22 +12,29 @@ logged ego poses) and the perturbed actors' futures, all in the world frame:
   detections and predictions.
 Horizons count from the plan's first stamp (the decision time). Only actors, detections and
 ground truth inside x in [-72, 72] m, y in [-40, 40] m of the ego frame at the decision time
-(the plan's first pose) count; actors outside never collide in these metrics.
+(the plan's first pose) count; actors outside never collide in these metrics. An actor counts
+only at the plan stamps where it exists (``ActorFutures.present``: its observed span, see
+core.futures); an actor that appears after the decision is judged in range where it appears.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
+from advsim_ros.core.futures import (
+    ACTOR_EXTRAPOLATION,
+    MAX_ACTOR_EXTRAPOLATION,
+    ActorFutures,
+    BoolArray,
+    interpolate_trajectory,
+)
+from advsim_ros.core.futures import NS_PER_S as NS_PER_S  # re-exported: the modules that time plans take it here
 from advsim_ros.core.geometry import bev_iou, boxes_overlap, wrap_angle
-from advsim_ros.core.types import ActorTrack, EgoGeometry, EgoTrajectory, FloatArray, Plan, ScenarioError
-
-NS_PER_S = 1_000_000_000
-BoolArray = npt.NDArray[np.bool_]
+from advsim_ros.core.types import EgoGeometry, EgoTrajectory, FloatArray, Plan, ScenarioError
 
 
 @dataclass(frozen=True)
@@ -39,6 +46,7 @@ class MetricsConfig:
     y_range: tuple[float, float] = (-40.0, 40.0)  # evaluation range to the ego's left [m]
     iou_threshold: float = 0.7  # BEV IoU for a detection to match a ground-truth box [1]
     prediction_match_radius: float = 2.0  # a prediction belongs to the nearest actor within this at its start [m]
+    actor_extrapolation: float = ACTOR_EXTRAPOLATION  # an actor exists this long beyond its first/last observation [s]
 
     def __post_init__(self) -> None:
         name = type(self).__name__
@@ -52,38 +60,9 @@ class MetricsConfig:
             raise ScenarioError(f"{name}.iou_threshold: must be in (0, 1], got {self.iou_threshold}")
         if not self.prediction_match_radius > 0.0:
             raise ScenarioError(f"{name}.prediction_match_radius: must be positive, got {self.prediction_match_radius}")
-
-
-@dataclass(frozen=True, eq=False)
-class ActorFutures:
-    """The perturbed actors' futures, sampled at the plan's stamps, in the world frame."""
-
-    states: FloatArray  # (N, H, 3) box centre x, y [m] and heading [rad] at each plan stamp
-    sizes: FloatArray  # (N, 2) box length, width [m]
-
-    def __post_init__(self) -> None:
-        states = np.asarray(self.states, dtype=np.float64)
-        sizes = np.asarray(self.sizes, dtype=np.float64)
-        if states.ndim != 3 or states.shape[2] != 3:
-            raise ScenarioError(f"ActorFutures states: expected shape (N, H, 3) = [x, y, yaw], got {states.shape}")
-        if sizes.shape != (states.shape[0], 2):
-            raise ScenarioError(f"ActorFutures sizes: expected shape ({states.shape[0]}, 2), got {sizes.shape}")
-        if not (np.all(np.isfinite(states)) and np.all(np.isfinite(sizes))):
-            raise ScenarioError("ActorFutures: states and sizes must be finite")
-        if np.any(sizes <= 0.0):
-            raise ScenarioError("ActorFutures sizes: lengths and widths must be positive")
-        object.__setattr__(self, "states", states)
-        object.__setattr__(self, "sizes", sizes)
-
-    @property
-    def num_actors(self) -> int:
-        return int(self.states.shape[0])
-
-    def boxes(self) -> FloatArray:
-        """(N, H, 5) boxes [x, y, yaw, length, width]."""
-        count, steps = self.states.shape[:2]
-        sizes = np.broadcast_to(self.sizes[:, None, :], (count, steps, 2))
-        return np.concatenate([self.states, sizes], axis=-1)
+        if not 0.0 <= self.actor_extrapolation <= MAX_ACTOR_EXTRAPOLATION:
+            reach = self.actor_extrapolation
+            raise ScenarioError(f"{name}.actor_extrapolation: must be in [0, {MAX_ACTOR_EXTRAPOLATION}] s, got {reach}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,35 +119,6 @@ def trajectory_kinematics(times: FloatArray, xy: FloatArray, yaws: FloatArray) -
     return Kinematics(lateral, longitudinal, jerk)
 
 
-def interpolate_trajectory(
-    stamps_ns: npt.NDArray[np.int64],
-    xy: FloatArray,
-    yaws: FloatArray,
-    query_ns: npt.NDArray[np.int64],
-) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Poses at query stamps, linear in time (headings unwrapped); valid marks queries inside the span."""
-    reference = stamps_ns[0]
-    times = (stamps_ns - reference).astype(np.float64)
-    queries = (np.asarray(query_ns, dtype=np.int64) - reference).astype(np.float64)
-    valid = (query_ns >= stamps_ns[0]) & (query_ns <= stamps_ns[-1])
-    unwrapped = np.unwrap(yaws)
-    out_xy = np.stack([np.interp(queries, times, xy[:, 0]), np.interp(queries, times, xy[:, 1])], axis=-1)
-    out_yaw = wrap_angle(np.interp(queries, times, unwrapped))
-    return out_xy, np.asarray(out_yaw, dtype=np.float64), valid
-
-
-def actor_futures_at(tracks: Iterable[ActorTrack], stamps_ns: npt.NDArray[np.int64]) -> ActorFutures:
-    """The actors' states at the given stamps (the plan's), linear in time; held constant outside each track."""
-    tracks = tuple(tracks)
-    stamps = np.asarray(stamps_ns, dtype=np.int64)
-    states = np.empty((len(tracks), stamps.shape[0], 3))
-    for index, track in enumerate(tracks):
-        xy, yaws, _ = interpolate_trajectory(track.stamps_ns, track.centers[:, :2], track.yaws, stamps)
-        states[index, :, :2], states[index, :, 2] = xy, yaws
-    sizes = np.array([track.size[:2] for track in tracks]).reshape(-1, 2)
-    return ActorFutures(states, sizes)
-
-
 def human_at(human: EgoTrajectory, query_ns: npt.NDArray[np.int64]) -> tuple[FloatArray, FloatArray, BoolArray]:
     """The human (logged) ego poses at query stamps, with the mask of stamps the log covers."""
     return interpolate_trajectory(human.stamps_ns, human.xy, human.yaws, query_ns)
@@ -203,8 +153,15 @@ def require_aligned(plan: Plan, actors: ActorFutures) -> None:
 
 
 def actors_in_range(plan: Plan, actors: ActorFutures, config: MetricsConfig) -> BoolArray:
-    """(N,) actors inside the evaluation range at the decision time (the plan's first pose)."""
-    return in_range(actors.states[:, 0, :2], plan.xy[0], float(plan.yaws[0]), config)
+    """(N,) actors inside the evaluation range around the decision pose (the plan's first).
+
+    Each is judged where it is at the decision or, if it appears later, where it first appears; an
+    actor absent at every plan stamp never counts.
+    """
+    present = actors.present
+    first_xy = actors.states[np.arange(actors.num_actors), np.argmax(present, axis=1), :2]
+    inside = in_range(np.nan_to_num(first_xy), plan.xy[0], float(plan.yaws[0]), config)
+    return present.any(axis=1) & inside
 
 
 def collision_steps(plan: Plan, actors: ActorFutures, ego: EgoGeometry, config: MetricsConfig) -> BoolArray:
@@ -214,7 +171,7 @@ def collision_steps(plan: Plan, actors: ActorFutures, ego: EgoGeometry, config: 
     active = actors_in_range(plan, actors, config)
     if not np.any(active):
         return np.zeros(plan.stamps_ns.shape[0], dtype=bool)
-    overlapping = boxes_overlap(actors.boxes()[active], boxes[None])
+    overlapping = boxes_overlap(actors.finite_boxes()[active], boxes[None]) & actors.present[active]
     return np.asarray(overlapping.any(axis=0), dtype=bool)
 
 
@@ -304,6 +261,16 @@ class Predictions:
         object.__setattr__(self, "xy", xy)
 
 
+def _true_positions(
+    plan: Plan, actors: ActorFutures, index: int, query_ns: npt.NDArray[np.int64]
+) -> tuple[FloatArray, BoolArray]:
+    """An actor's positions at query stamps, linear between the plan stamps it exists at; covered: within those."""
+    present = actors.present[index]
+    states = actors.states[index, present]
+    xy, _, covered = interpolate_trajectory(plan.stamps_ns[present], states[:, :2], states[:, 2], query_ns)
+    return xy, covered
+
+
 def prediction_errors(plan: Plan, actors: ActorFutures, predictions: Predictions, config: MetricsConfig) -> FloatArray:
     """(len(horizons),) mean L2 [m] between predictions and the actors' true futures at each horizon.
 
@@ -316,14 +283,9 @@ def prediction_errors(plan: Plan, actors: ActorFutures, predictions: Predictions
     errors = np.full(len(config.horizons), np.nan)
     if active.size == 0 or predictions.xy.shape[0] == 0:
         return errors
-    truth = [
-        interpolate_trajectory(
-            plan.stamps_ns, actors.states[index, :, :2], actors.states[index, :, 2], predictions.stamps_ns
-        )
-        for index in active
-    ]
+    truth = [_true_positions(plan, actors, int(index), predictions.stamps_ns) for index in active]
     truth_xy = np.stack([item[0] for item in truth])  # (A, T, 2)
-    covered = np.stack([item[2] for item in truth])  # (A, T)
+    covered = np.stack([item[1] for item in truth])  # (A, T)
     start_distance = np.linalg.norm(predictions.xy[:, None, 0, :] - truth_xy[None, :, 0, :], axis=-1)  # (K, A)
     start_distance[:, ~covered[:, 0]] = np.inf
     pairs: list[tuple[int, int]] = []
@@ -341,9 +303,7 @@ def prediction_errors(plan: Plan, actors: ActorFutures, predictions: Predictions
             predicted, _, inside = interpolate_trajectory(
                 predictions.stamps_ns, predictions.xy[prediction], np.zeros(predictions.stamps_ns.shape[0]), query
             )
-            true_xy, _, true_inside = interpolate_trajectory(
-                plan.stamps_ns, actors.states[active[actor], :, :2], actors.states[active[actor], :, 2], query
-            )
+            true_xy, true_inside = _true_positions(plan, actors, int(active[actor]), query)
             if inside[0] and true_inside[0]:
                 distances.append(float(np.linalg.norm(predicted[0] - true_xy[0])))
         if distances:

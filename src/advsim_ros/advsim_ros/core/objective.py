@@ -6,9 +6,10 @@ CVPR 2021):
 - l_IL: mean over plan poses of the smooth-L1 distance (Huber, transition `smooth_l1_beta`,
   summed over x and y) between the plan and the human trajectory at the same stamps [m];
   poses after the end of the log are left out.
-- l_col(t): the worst in-range actor at plan stamp t: 1 + BEV IoU with the SDV's box when
-  they overlap (deeper overlap costs more), else max(0, 1 - gap / collision_margin) with
-  the gap between the boxes [m], so the cost rises before contact.
+- l_col(t): the worst in-range actor that exists at plan stamp t (core.futures: over its observed
+  span only): 1 + BEV IoU with the SDV's box when they overlap (deeper overlap costs more), else
+  max(0, 1 - gap / collision_margin) with the gap between the boxes [m], so the cost rises
+  before contact.
 - c_o(t): comfort and rules: w_lat max(0, |a_lat| - lateral_acceleration_limit) +
   w_jerk max(0, |jerk| - jerk_limit) + w_drivable (share of the SDV's box corners and
   centre outside the drivable area) + w_lane max(0, distance to the nearest lane
@@ -32,9 +33,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from advsim_ros.core.futures import ActorFutures, BoolArray
 from advsim_ros.core.geometry import bev_iou, box_corners, box_distance
 from advsim_ros.core.metrics import (
-    ActorFutures,
     MetricsConfig,
     actors_in_range,
     human_at,
@@ -155,13 +156,21 @@ def imitation_loss(plan: Plan, human: EgoTrajectory, beta: float) -> float:
     return float(per_pose.mean())
 
 
-def collision_costs(sdv_boxes: FloatArray, actor_boxes: FloatArray, margin: float) -> tuple[FloatArray, FloatArray]:
-    """(H,) l_col(t) over actors (N, H, 5) against SDV boxes (H, 5), and (H,) the smallest gap [m]."""
+def collision_costs(
+    sdv_boxes: FloatArray, actor_boxes: FloatArray, margin: float, present: BoolArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """(H,) l_col(t) over actors (N, H, 5) against SDV boxes (H, 5), and (H,) the smallest gap [m].
+
+    ``present`` (N, H): where each actor exists (default everywhere); elsewhere it costs 0 and is
+    infinitely far, whatever its box holds.
+    """
     steps = sdv_boxes.shape[0]
     if actor_boxes.shape[0] == 0:
         return np.zeros(steps), np.full(steps, np.inf)
-    gaps = box_distance(actor_boxes, sdv_boxes[None])  # (N, H) [m]
-    iou = bev_iou(actor_boxes, sdv_boxes[None])
+    exists = np.ones(actor_boxes.shape[:2], dtype=bool) if present is None else present
+    boxes = np.where(exists[..., None], actor_boxes, 0.0)  # finite stand-ins, masked below
+    gaps = np.where(exists, box_distance(boxes, sdv_boxes[None]), np.inf)  # (N, H) [m]
+    iou = np.where(exists, bev_iou(boxes, sdv_boxes[None]), 0.0)
     overlapping = iou > 0.0
     touching = gaps <= 0.0  # touching without area overlap counts as contact
     cost = np.where(overlapping | touching, 1.0 + iou, np.maximum(0.0, 1.0 - gaps / margin))
@@ -223,7 +232,7 @@ def _planning_cost(
     """Collision sum, comfort sum, closest gap and lane availability of one trajectory."""
     active = actors_in_range(plan, actors, metrics)
     sdv = ego.boxes(plan.xy, plan.yaws)
-    collision, gaps = collision_costs(sdv, actors.boxes()[active], config.collision_margin)
+    collision, gaps = collision_costs(sdv, actors.boxes()[active], config.collision_margin, actors.present[active])
     comfort, available = comfort_costs(plan, config, drivable, road_map, ego)
     return float(collision.sum()), float(comfort.sum()), float(gaps.min()), available
 
@@ -241,7 +250,7 @@ def evaluate_objective(
     """The objective of one query: the stack's plan against the human trajectory and the actors.
 
     `actors` are sampled at the plan's stamps; only actors inside the metrics' evaluation
-    range at the decision time count; ``ego`` is the SDV's box.
+    range at the decision time count, and each only where it exists; ``ego`` is the SDV's box.
     """
     metrics_config = MetricsConfig() if metrics is None else metrics
     require_aligned(plan, actors)

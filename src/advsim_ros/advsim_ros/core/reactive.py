@@ -46,7 +46,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from advsim_ros.core.closed_loop import VehicleState
-from advsim_ros.core.metrics import NS_PER_S, human_at, interpolate_trajectory
+from advsim_ros.core.futures import interpolate_trajectory
+from advsim_ros.core.metrics import NS_PER_S, human_at
 from advsim_ros.core.types import (
     ActorClass,
     ActorTrack,
@@ -301,22 +302,28 @@ class ReactiveTraffic:
         return self.ego.boxes(xy[0], yaws[0]) if bool(valid[0]) else None
 
     def off_track(self) -> tuple[ActorTrack, ...]:
-        """The actors off their tracks now, each with one state: where it is (log time)."""
+        """The actors off their tracks now, each with one state: where it is (log time); none after its track ends."""
         return tuple(
             _track(actor.path.track, np.array([self.now_ns], dtype=np.int64), actor.rows[-1][None])
             for actor in self.actors
-            if actor.reacting
+            if actor.reacting and self.now_ns <= int(actor.path.track.stamps_ns[-1])
         )
 
     def drives(self, reacted_only: bool = True) -> tuple[ActorTrack, ...]:
         """Each reactive actor's drive, one state per control step from the start (log time): by default only
-        of those that left their tracks at some time (the others drove their tracks exactly)."""
+        of those that left their tracks at some time (the others drove their tracks exactly).
+
+        A drive ends where its track ends: the actor was not observed after that, so it does not exist then
+        (its rows beyond would be the track's last state held, or the straight extension of its path).
+        """
         stamps = self.start_ns + self.step_ns * np.arange(len(self.actors[0].rows) if self.actors else 0)
-        return tuple(
-            _track(actor.path.track, stamps.astype(np.int64), np.array(actor.rows))
-            for actor in self.actors
-            if actor.reacted or not reacted_only
-        )
+        drives = []
+        for actor in self.actors:
+            if actor.reacted or not reacted_only:
+                observed = stamps <= int(actor.path.track.stamps_ns[-1])  # the first row is: tracks span the start
+                rows = np.array(actor.rows)[observed]
+                drives.append(_track(actor.path.track, stamps[observed].astype(np.int64), rows))
+        return tuple(drives)
 
 
 def _track(track: ActorTrack, stamps_ns: IntArray, rows: FloatArray) -> ActorTrack:

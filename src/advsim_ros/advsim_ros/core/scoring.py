@@ -10,10 +10,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from advsim_ros.core.futures import actor_futures_at
 from advsim_ros.core.metrics import (
     Predictions,
     QueryMetrics,
-    actor_futures_at,
     average_precision,
     match_detections,
     plan_from_decision,
@@ -53,19 +53,19 @@ def evaluate_query(
     decision_pose = scenario.ego.poses[decision_frame]
     full_plan = plan_from_decision(plan, decision_pose, decision_ns)
     actors = replace_actors(scenario.actors, moved)
-    futures = actor_futures_at(actors, full_plan.stamps_ns)
+    reach = settings.metrics.actor_extrapolation
+    futures = actor_futures_at(actors, full_plan.stamps_ns, reach)
     terms = evaluate_objective(
         full_plan, scenario.ego, futures, scenario.ego_geometry, settings.objective, settings.metrics, drivable,
         scenario.road_map,
     )  # fmt: skip
     tally = None
     if detections is not None:
-        present = [a for a in actors if a.stamps_ns[0] <= decision_ns <= a.stamps_ns[-1]]  # ground truth then
-        at_decision = actor_futures_at(present, full_plan.stamps_ns[:1])
+        at_decision = actor_futures_at(actors, full_plan.stamps_ns[:1], reach)
+        truth = at_decision.boxes()[at_decision.present[:, 0], 0]  # the actors that exist then
         yaw = math.atan2(decision_pose[1, 0], decision_pose[0, 0])
-        tally = match_detections(
-            detections.boxes, detections.scores, at_decision.boxes()[:, 0], decision_pose[:2, 3], yaw, settings.metrics
-        )
+        position = decision_pose[:2, 3]
+        tally = match_detections(detections.boxes, detections.scores, truth, position, yaw, settings.metrics)
     metrics = query_metrics(
         full_plan, scenario.ego, futures, scenario.ego_geometry, settings.metrics, tally, predictions
     )

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.adapters import messages as foreign
-from advsim_ros.adapters.plans import contract_plan, frame_transform
+from advsim_ros.adapters.plans import contract_plan, ego_before, frame_transform
 from advsim_ros.adapters.profile import StackProfile, load_profile
 from advsim_ros.adapters.timing import PlanBook
 from advsim_ros.contract import codec, names, topics
@@ -60,7 +60,7 @@ class StackAdapter(GraphNode):
         self.timing = self.profile.timing
         self.clock_ns = 0
         self.world_frame = ""
-        self.speeds: dict[int, float] = {}  # odometry stamp -> ego speed
+        self.odometry: dict[int, tuple[float, np.ndarray]] = {}  # odometry stamp -> ego speed, world xy
         self.first_fix_xy: np.ndarray | None = None
         self.books: dict[str, PlanBook[Any]] = {}  # by contract answer topic: which answer goes with which sweep
         self.answer_publishers: dict[str, Callable[[Any], None]] = {}
@@ -153,9 +153,9 @@ class StackAdapter(GraphNode):
         odometry = codec.decode(raw, names.ODOMETRY)
         stamp = codec.stamp_ns(odometry.header.stamp)
         self.world_frame = odometry.header.frame_id
-        self.speeds[stamp] = foreign.odometry_speed(odometry)
-        while len(self.speeds) > KEPT_ODOMETRY:
-            del self.speeds[min(self.speeds)]
+        self.odometry[stamp] = (foreign.odometry_speed(odometry), foreign.odometry_xy(odometry))
+        while len(self.odometry) > KEPT_ODOMETRY:
+            del self.odometry[min(self.odometry)]
         pose = self.profile.inputs.pose
         if pose.type == "navsatfix" and self.first_fix_xy is None:
             self.first_fix_xy = foreign.odometry_xy(odometry)
@@ -253,9 +253,8 @@ class StackAdapter(GraphNode):
             return
         world = self.world_frame or "world"
         if contract is topics.PLAN:
-            known = [s for s in self.speeds if s <= made_ns]
-            speed = self.speeds[max(known)] if known else 0.0
-            plan = contract_plan(answer, made_ns, sweep_ns, speed, plan_output, transform)
+            speed, ego = ego_before(self.odometry, made_ns)  # a path without times is driven from there
+            plan = contract_plan(answer, made_ns, sweep_ns, speed, plan_output, transform, ego)
             self.answer_publishers[contract.name](path_msg(plan, sweep_ns, world))
             return
         frame, tracks = answer

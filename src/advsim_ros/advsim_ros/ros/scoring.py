@@ -14,7 +14,8 @@ from advsim_ros.contract.protocol import EpisodeRecord, ScoreRecord
 from advsim_ros.contract.tracks import TrackArrayRecord
 from advsim_ros.core.closed_loop import ControllerConfig, executed_as_plan, executed_metrics
 from advsim_ros.core.episode import EpisodeClock
-from advsim_ros.core.metrics import Predictions, actor_futures_at
+from advsim_ros.core.futures import actor_futures_at
+from advsim_ros.core.metrics import Predictions
 from advsim_ros.core.objective import ScorerSettings
 from advsim_ros.core.reactive import with_reactions
 from advsim_ros.core.scoring import Detections, QueryEvaluation, evaluate_query
@@ -107,7 +108,8 @@ def score_episode(
         [track.shifted(-offset).to_actor_track() for track in episode.reacted_actors],
     )
     drove = evaluate_query(driven, scenario, actors, decision_frame, settings, drivable, detections, predictions)
-    loop = executed_metrics(executed, actor_futures_at(actors, executed.stamps_ns), scenario.ego_geometry)
+    futures = actor_futures_at(actors, executed.stamps_ns, settings.metrics.actor_extrapolation)
+    loop = executed_metrics(executed, futures, scenario.ego_geometry)
     return _score(
         query_id, drove, common, loop="closed",
         open_loop_adversarial_loss=evaluation.terms.value,

@@ -26,8 +26,9 @@ from advsim_ros.core.closed_loop import (
     initial_state,
     yaw_rate_of,
 )
+from advsim_ros.core.futures import actor_futures_at
 from advsim_ros.core.lidar.boxes import yaw_pose
-from advsim_ros.core.metrics import NS_PER_S, MetricsConfig, actor_futures_at, collision_steps, plan_from_decision
+from advsim_ros.core.metrics import NS_PER_S, MetricsConfig, collision_steps, plan_from_decision
 from advsim_ros.core.types import Plan
 from advsim_ros.io.synthetic import SyntheticLog
 from advsim_ros.stacks.interface import AutonomyStack, EgoMotion, StackError, StackFrame, points_xyz

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from advsim_ros.core.futures import actor_futures_at
 from advsim_ros.core.metrics import (
     MetricsConfig,
-    actor_futures_at,
     aggregate_metrics,
     plan_from_decision,
     query_metrics,
@@ -103,7 +103,7 @@ def run_on_bag(
         if step.frame_index + FUTURE_FRAMES < scenario.num_frames:
             stamp = int(scenario.frame_stamps_ns[step.frame_index])
             plan = plan_from_decision(step.output.plan, scenario.ego.poses[step.frame_index], stamp)
-            actors = actor_futures_at(scenario.actors, plan.stamps_ns)
+            actors = actor_futures_at(scenario.actors, plan.stamps_ns, metrics_config.actor_extrapolation)
             scored.append(query_metrics(plan, scenario.ego, actors, scenario.ego_geometry, metrics_config))
     nan = float("nan")
     total = aggregate_metrics(scored) if scored else None

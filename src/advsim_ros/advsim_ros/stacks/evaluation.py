@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from advsim_ros.core.futures import actor_futures_at
 from advsim_ros.core.geometry import bev_iou
 from advsim_ros.core.metrics import (
     DetectionTally,
     MetricsConfig,
     QueryMetrics,
-    actor_futures_at,
     aggregate_metrics,
     average_precision,
     match_detections,
@@ -75,7 +75,7 @@ def evaluate_windows(
         plan = plan_from_decision(
             steps[-1][1].plan, scenario.ego.poses[decision], int(scenario.frame_stamps_ns[decision])
         )
-        actors = actor_futures_at(scenario.actors, plan.stamps_ns)
+        actors = actor_futures_at(scenario.actors, plan.stamps_ns, metrics_config.actor_extrapolation)
         metrics = query_metrics(plan, scenario.ego, actors, scenario.ego_geometry, metrics_config)
         results.append(WindowResult(scenario.scenario_id, decision, metrics, tuple(times)))
     return results

@@ -28,7 +28,8 @@ import numpy as np
 from advsim_ros.contract import codec, names, qos
 from advsim_ros.contract.codec import header_msg, message
 from advsim_ros.contract.topics import TopicSpec
-from advsim_ros.core.metrics import ActorFutures, MetricsConfig, actor_futures_at, collision_steps, plan_from_decision
+from advsim_ros.core.futures import ActorFutures, actor_futures_at
+from advsim_ros.core.metrics import MetricsConfig, collision_steps, plan_from_decision
 from advsim_ros.core.types import ActorTrack, FloatArray, Plan, Scenario
 
 ACTORS = TopicSpec("/advsim/markers/actors", names.MARKER_ARRAY, qos.STREAM)
@@ -160,7 +161,7 @@ def first_collision_ns(scenario: Scenario, plan: Plan, decision_index: int, conf
     """
     decision_ns = int(scenario.frame_stamps_ns[decision_index])
     full = plan_from_decision(plan, scenario.ego.poses[decision_index], decision_ns)
-    futures: ActorFutures = actor_futures_at(scenario.actors, full.stamps_ns)
+    futures: ActorFutures = actor_futures_at(scenario.actors, full.stamps_ns, config.actor_extrapolation)
     colliding = collision_steps(full, futures, scenario.ego_geometry, config)
     return int(full.stamps_ns[int(np.argmax(colliding))]) if np.any(colliding) else None
 
