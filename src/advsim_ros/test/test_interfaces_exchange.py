@@ -110,6 +110,7 @@ SAMPLES: dict[str, list[dict]] = {
             "sweeps_delivered": 10,
             "plans_received": 9,
             "outcome": 1,
+            "outcome_detail": "the stack answered 9 of 10 frames",
             "input_digest": "ab",
             "plan_digest": "cd",
             "has_plan": True,
