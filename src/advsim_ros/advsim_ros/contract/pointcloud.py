@@ -185,11 +185,12 @@ def _checked_layout(msg: PointCloud2Like) -> tuple[np.dtype, int, int]:
 
 
 def _cloud_rows(msg: PointCloud2Like) -> tuple[np.dtype, np.ndarray]:
-    """The point dtype and a (height, width * point_step) uint8 view of the message's bytes, sizes checked."""
+    """The point dtype and a (height, width * point_step) uint8 view of the message's bytes, sizes checked;
+    for a cloud without points, a (0, 0) array of points (the other dimension may be any number)."""
     dtype, height, width = _checked_layout(msg)
     point_step, row_step = dtype.itemsize, _integer(msg, "row_step")
     if height * width == 0:
-        return dtype, np.zeros((height, 0), dtype=np.uint8)
+        return dtype, np.zeros((0, 0), dtype=dtype)
     if row_step < width * point_step:
         raise PointCloudError(f"PointCloud2: row_step {row_step} is less than width {width} x point_step {point_step}")
     data = _data_bytes(msg.data)
@@ -207,15 +208,14 @@ def _cloud_rows(msg: PointCloud2Like) -> tuple[np.dtype, np.ndarray]:
 
 
 def cloud_view(msg: PointCloud2Like) -> np.ndarray:
-    """The cloud's points as a (height, width) structured view of the message's bytes, without a copy.
+    """The cloud's points as a (height, width) structured view of the message's bytes, without a copy
+    ((0, 0) when it has no points).
 
     Checks everything cloud_to_points checks; for looking at clouds (layout, finite points)
     without decoding them.
     """
     dtype, rows = _cloud_rows(msg)
-    if rows.size == 0:
-        return np.zeros(rows.shape, dtype=dtype)
-    return rows.view(dtype)
+    return rows if rows.dtype == dtype else rows.view(dtype)
 
 
 def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
@@ -225,6 +225,8 @@ def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
     required (any numeric datatype, count 1). Raises PointCloudError naming the problem.
     """
     dtype, rows = _cloud_rows(msg)
+    if rows.dtype == dtype:
+        return rows.reshape(-1)  # no points
     # One copy of the bytes, viewed as points: padding between fields survives (a structured .copy() leaves
     # it undefined), and the points own their memory, writable, apart from the message's buffer.
     return rows.copy().reshape(-1).view(dtype)
