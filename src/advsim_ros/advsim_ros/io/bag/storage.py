@@ -8,13 +8,15 @@ written by older versions of the project (or by other tools) decode with their o
 from __future__ import annotations
 
 import functools
+import io
 import logging
+import os
 import struct
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import apsw
 import numpy as np
@@ -24,7 +26,7 @@ from rosbags.rosbag2 import Reader, storage_mcap
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import TypesysError
+from rosbags.typesys.base import Nodetype, TypesysError
 from rosbags.typesys.store import Typestore
 
 from advsim_ros.contract import codec, names
@@ -52,6 +54,30 @@ def _corrupt(what: str, error: BaseException) -> BagError:
     return BagError(f"{what}: {detail}")
 
 
+# Fields the contract gained after bags were first written: older bags' own definitions lack them, and the
+# readers default them (contract/scenario.py, contract/tracks.py).
+_ADDED_LATER = {("advsim_msgs/msg/ScenarioInfo", "ego_forward_offset"), ("advsim_msgs/msg/ActorTrackArray", "run_id")}
+
+
+def _type_names(kind: Any) -> list[str]:
+    """The message types a rosbags field type refers to: (NAME, type), or arrays and sequences of those."""
+    node, detail = kind
+    if node == Nodetype.NAME:
+        return [detail]
+    if node in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+        return _type_names(detail[0])
+    return []
+
+
+def _difference(stored: list[tuple[str, Any]], expected: list[tuple[str, Any]]) -> str:
+    names, kinds = [f for f, _ in stored], dict(expected)
+    unknown = [f for f in names if f not in kinds]
+    missing = [f for f, _ in expected if f not in names]
+    retyped = [f for f, kind in stored if f in kinds and kinds[f] != kind]
+    found = (("unknown fields", unknown), ("lacks", missing), ("other types for", retyped))
+    return "; ".join(f"{what} {fields}" for what, fields in found if fields) or "fields in another order"
+
+
 def _count(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
@@ -76,6 +102,26 @@ def _bounded(decompressor: Callable[[], Any]) -> Callable[[bytes, int], bytes]:
     return decompress
 
 
+def _read_within(stream: BinaryIO, size: int) -> bytes:
+    """rosbags' read_exact, refusing a size the file (or chunk) does not hold before read() allocates it."""
+    position = stream.tell()
+    if isinstance(stream, io.BytesIO):
+        remaining = stream.getbuffer().nbytes - position
+    else:
+        try:
+            remaining = os.fstat(stream.fileno()).st_size - position
+        except (OSError, ValueError):  # not a plain file: rosbags' own read
+            return _read_exact(stream, size)
+    if size > remaining:
+        raise ReaderError(f"a record at offset {position} declares {size} bytes; {remaining} follow")
+    return _read_exact(stream, size)
+
+
+# rosbags (pinned) reads MCAP records and chunks whole: sizes are checked against what is there first, and
+# decompression stops at the declared size, so a corrupt size never allocates more than the bag holds.
+_read_exact = getattr(storage_mcap.read_exact, "__wrapped__", storage_mcap.read_exact)  # once, if imported again
+_read_within.__wrapped__ = _read_exact  # type: ignore[attr-defined]
+storage_mcap.read_exact = _read_within
 storage_mcap.DECOMPRESSORS.update(zstd=_bounded(storage_mcap.zstd.ZstdDecompressor), lz4=_bounded(LZ4FrameDecompressor))
 
 
@@ -110,7 +156,7 @@ class BagReader:
             if c.msgdef.format == MessageDefinitionFormat.MSG and c.msgdef.data
         )
         try:
-            self.store = _typestore(definitions)
+            self.store = _typestore(definitions, frozenset(c.msgtype for c in self.reader.connections))
         except _CORRUPT as error:
             self.reader.close()
             raise _corrupt(f"bag {self.path}: its message definitions", error) from None
@@ -137,7 +183,28 @@ class BagReader:
             return None
         if any(c.msgtype != msgtype for c in matches):
             raise BagError(f"bag {self.path}: topic {topic} has type {matches[0].msgtype}, expected {msgtype}")
+        self._check_definition(topic, msgtype)
         return matches[0]
+
+    def _check_definition(self, topic: str, msgtype: str) -> None:
+        """The bag's own definition of a type the contract reads (and of the types inside it) has the contract's
+        fields, in order, with their types; older bags may lack the fields added since (_ADDED_LATER)."""
+        contract = codec.typestore().fielddefs
+        pending, seen = [msgtype], set()
+        while pending:
+            name = pending.pop()
+            if name in seen or name not in contract:
+                continue
+            seen.add(name)
+            stored = list(self.store.fielddefs[name][1])
+            present = {field for field, _ in stored}
+            expected = [(f, kind) for f, kind in contract[name][1] if f in present or (name, f) not in _ADDED_LATER]
+            if stored != expected:
+                raise BagError(
+                    f"bag {self.path}: topic {topic}: the bag's own definition of {name} is not the one advsim_ros "
+                    f"reads ({_difference(stored, expected)}): a corrupt bag, or another message of that name"
+                )
+            pending += [reference for _, kind in expected for reference in _type_names(kind)]
 
     def messages(self, connections: list[Connection]) -> Iterator[tuple[Connection, int, Any]]:
         """Decoded messages of these connections in time order; BagError on truncated or corrupt storage."""
@@ -191,9 +258,10 @@ class BagSummary:
 
 
 @functools.lru_cache(maxsize=16)
-def _typestore(definitions: tuple[tuple[str, str, str], ...]) -> Typestore:
+def _typestore(definitions: tuple[tuple[str, str, str], ...], msgtypes: frozenset[str]) -> Typestore:
     """The bag's own message definitions (topic, type, text) first, as it is self-describing, then
-    codec.typestore()'s. Cached: building one takes ~0.1 s, and a graph opens the same bag many times."""
+    codec.typestore()'s for the types its topics (``msgtypes``) need and it lacks. Cached, and only
+    what the topics need: registering every known type took ~0.1 s per bag opened."""
     store = get_typestore(Stores.EMPTY)
     for topic, msgtype, text in definitions:
         try:
@@ -201,7 +269,23 @@ def _typestore(definitions: tuple[tuple[str, str, str], ...]) -> Typestore:
         except TypesysError as error:
             raise TypesysError(f"topic {topic} type {msgtype}: {error}") from None
     defaults = codec.typestore().fielddefs
-    store.register({name: value for name, value in defaults.items() if name not in store.fielddefs})
+    added: dict[str, Any] = {}
+    seen: set[str] = set()
+    pending = list(msgtypes)
+    while pending:
+        name = pending.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        if name in store.fielddefs:
+            fields = store.fielddefs[name][1]
+        elif name in defaults:
+            added[name] = defaults[name]
+            fields = defaults[name][1]
+        else:
+            continue  # unknown: decoding it names the type
+        pending += [ref for _, kind in fields for ref in _type_names(kind)]
+    store.register(added)
     return store
 
 
