@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import importlib.util
+import resource
 import shutil
-from collections.abc import Iterator, Mapping
+import signal
+import time
+import traceback
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -144,3 +148,64 @@ class CloudBags:
 def cloud_bags() -> CloudBags:
     """Writes scenario bags with clouds as drivers record them (see CloudBags)."""
     return CloudBags()
+
+
+class CaseTimeout(BaseException):
+    """A fuzz case ran past its time limit (a BaseException: no `except Exception` under test can hide it)."""
+
+
+def _on_alarm(signum: int, frame: object) -> None:
+    raise CaseTimeout
+
+
+class FuzzCases:
+    """Runs fuzz cases one by one: each must return (a correct read; the case asserts what that means) or raise
+    one of ``clean`` with a one-line message, within ``limit_s``; anything else (another exception type, a
+    multi-line message, a failed assertion, running past the limit) is a failure, named with its case."""
+
+    def __init__(self, clean: tuple[type[BaseException], ...], limit_s: float) -> None:
+        self.clean, self.limit_s = clean, limit_s
+        self.count = self.errors = 0
+        self.failures: list[str] = []
+        self.slowest = 0.0
+        self._peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+    def run(self, name: str, case: Callable[[], object]) -> None:
+        self.count += 1
+        previous = signal.signal(signal.SIGALRM, _on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, self.limit_s)
+        started = time.perf_counter()
+        try:
+            case()
+        except CaseTimeout:
+            self.failures.append(f"{name}: ran past {self.limit_s} s")
+        except self.clean as error:
+            self.errors += 1
+            if "\n" in str(error) or not str(error):
+                self.failures.append(f"{name}: {type(error).__name__} without a one-line message: {error!r}")
+        except Exception as error:  # any other exception is what the fuzz looks for
+            where = traceback.extract_tb(error.__traceback__)[-1]
+            self.failures.append(f"{name}: {type(error).__name__}: {error} ({where.filename}:{where.lineno})")
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+            self.slowest = max(self.slowest, time.perf_counter() - started)
+
+    def check(self, minimum: int, memory_mb: float) -> None:
+        """At least ``minimum`` cases, no failure, and the process's peak memory grew by less than ``memory_mb``."""
+        grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - self._peak_kb) / 1024
+        print(
+            f"fuzz: {self.count} cases, {self.errors} clean errors, {self.count - self.errors} reads, "
+            f"slowest {self.slowest:.2f} s, peak memory +{grown_mb:.0f} MB"
+        )
+        assert self.failures == [], f"{len(self.failures)} of {self.count} cases failed:\n" + "\n".join(
+            self.failures[:30]
+        )
+        assert self.count >= minimum
+        assert grown_mb < memory_mb
+
+
+@pytest.fixture
+def fuzz_cases() -> Callable[[tuple[type[BaseException], ...], float], FuzzCases]:
+    """Makes a FuzzCases runner: fuzz_cases((clean error types), per-case limit [s])."""
+    return FuzzCases
