@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import tarfile
 from collections import defaultdict
 from collections.abc import Callable
@@ -111,6 +112,24 @@ def test_a_truncated_sweep_file_is_rejected(tmp_path: Path) -> None:
     sweep.write_bytes(sweep.read_bytes()[:-3])
     with pytest.raises(KittiError, match=r"000001.bin: 173 bytes is not a whole number of 16-byte points"):
         load_kitti_tracking(root, "0000")
+
+
+def test_non_finite_points_are_dropped_at_import_and_counted_in_the_log(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    root = _mini_kitti(tmp_path)
+    sweep = root / "velodyne" / "0000" / "000001.bin"
+    points = np.fromfile(sweep, dtype=np.float32).reshape(-1, 4)
+    points[[0, 4], 0], points[7, 2], points[9, 3] = np.nan, -np.inf, np.nan  # a NaN intensity is kept
+    points.tofile(sweep)
+    with caplog.at_level(logging.WARNING):
+        scenario = load_kitti_tracking(root, "0000")
+    np.testing.assert_array_equal(scenario.sweeps[1].xyz, np.delete(points, [0, 4, 7], axis=0)[:, :3])
+    assert np.isnan(scenario.sweeps[1].points["intensity"][6])  # point 9, after the three dropped before it
+    assert [sweep.num_points for sweep in scenario.sweeps] == [10, 8, 12]
+    assert [record.getMessage() for record in caplog.records] == [
+        f"KITTI {root / 'velodyne' / '0000'}: dropped 3 non-finite points in 1 sweeps"
+    ]
 
 
 def test_missing_files_are_named(tmp_path: Path) -> None:

@@ -1,9 +1,10 @@
 """Everything about an attack that can be checked before a process starts, each failure one clear line.
 
-The bag (readable, with the LiDAR and ego-pose topics), the window (inside the log), the stack
-command (resolvable), the remappings (contract topics, checked by StackSpec) and every node's
-parameters (the same configs the nodes build, from the same files) are checked here, so a bad
-input starts nothing and loses nothing.
+The bag (readable, with the LiDAR and ego-pose topics; every PointCloud2 readable, the window's
+sweeps each with a valid point), the window (inside the log), the stack command (resolvable), the
+remappings (contract topics, checked by StackSpec) and every node's parameters (the same configs
+the nodes build, from the same files) are checked here, so a bad input starts nothing and loses
+nothing.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from advsim_ros.core.objective import scorer_settings_from_params
 from advsim_ros.core.search.driver import DriverConfig
 from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_from_params
 from advsim_ros.core.types import Scenario, ScenarioError
-from advsim_ros.io.bag import BagConfig, read_scenario_bag, summarize_bag
+from advsim_ros.io.bag import BagConfig, check_lidar_sweeps, read_scenario_bag, summarize_bag
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,9 +86,20 @@ def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
         start = 0 if options.replay_only else choose_window(scenario, params_dir)
     window_values = {**parameters["scenario_player"].get("window", {}), "window_start_frame": int(start)}
     window = section({"window": window_values}, "window", WindowConfig, "window")
-    window.frame_indices(scenario.num_frames)  # the window inside the log, or the error saying by how much
+    frames = window.frame_indices(scenario.num_frames)  # the window inside the log, or the error saying by how much
+    _check_sweeps(bag, bag_config, scenario, frames, window.history_frames)
     _check_node_configs(options, parameters)
     return Preflight(bag, scenario, window, bag_config, parameters, files)
+
+
+def _check_sweeps(bag: Path, config: BagConfig, scenario: Scenario, frames: range, history_frames: int) -> None:
+    """Every cloud readable, the window's sweeps each with a valid point, a sweep at every history frame
+    (lidar_resim replays them): what the graph's nodes would otherwise find after it started."""
+    stamps = [int(scenario.frame_stamps_ns[index]) for index in frames]
+    found = check_lidar_sweeps(bag, config, stamps)
+    missing = [index for index in frames[:history_frames] if int(scenario.frame_stamps_ns[index]) not in found]
+    if missing:
+        raise ScenarioError(f"{bag}: no LiDAR sweep on {config.lidar_topic} at the window's history frames {missing}")
 
 
 def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, Any]]) -> None:

@@ -10,6 +10,8 @@ survive, so intensity, ring, time or any other field round-trips unchanged.
 from __future__ import annotations
 
 import array
+import itertools
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -21,6 +23,9 @@ from advsim_ros.core.types import POINT_XYZ_FIELDS, ScenarioError
 
 class PointCloudError(ScenarioError):
     """A PointCloud2 whose layout or data cannot be read; the message names the problem."""
+
+
+_MAX_POINT_STEP = 2**31 - 1  # the largest itemsize numpy takes
 
 
 # sensor_msgs/msg/PointField datatype constants and their numpy equivalents.
@@ -102,14 +107,19 @@ def pointfields_to_dtype(fields: Sequence[PointFieldLike], point_step: int, is_b
     formats: list[str | tuple[str, tuple[int]]] = []
     offsets: list[int] = []
     occupied: list[tuple[int, int, str]] = []
+    try:
+        fields = list(fields)
+    except TypeError as error:
+        raise PointCloudError(f"PointCloud2: fields is not a list of PointFields ({error})") from None
     for field in fields:
-        name, offset, datatype, count = str(field.name), int(field.offset), int(field.datatype), int(field.count)
+        try:
+            name, offset, datatype, count = str(field.name), int(field.offset), int(field.datatype), int(field.count)
+        except (AttributeError, TypeError, ValueError) as error:
+            raise PointCloudError(f"PointCloud2: a field is not a PointField ({error})") from None
         if count == 0:
             continue  # a zero-count field holds no data (seen in some drivers' padding entries)
         if not name:
             raise PointCloudError("PointCloud2: a field has an empty name")
-        if name in names:
-            raise PointCloudError(f"PointCloud2: field {name!r} appears twice")
         if datatype not in _DATATYPE_TO_NUMPY:
             raise PointCloudError(f"PointCloud2: field {name!r} has unknown datatype {datatype}")
         if count < 0 or offset < 0:
@@ -120,13 +130,20 @@ def pointfields_to_dtype(fields: Sequence[PointFieldLike], point_step: int, is_b
             raise PointCloudError(
                 f"PointCloud2: field {name!r} (bytes {offset}..{end}) runs past point_step {point_step}"
             )
-        for other_start, other_end, other_name in occupied:
-            if offset < other_end and other_start < end:
-                raise PointCloudError(f"PointCloud2: fields {other_name!r} and {name!r} overlap")
         occupied.append((offset, end, name))
         names.append(name)
         formats.append(base.str if count == 1 else (base.str, (count,)))
         offsets.append(offset)
+    # sorted, not pairwise: a corrupt message may list a hundred thousand fields
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise PointCloudError(f"PointCloud2: field {name!r} appears twice")
+        seen.add(name)
+    occupied.sort()
+    for (_, previous_end, previous), (start, _, name) in itertools.pairwise(occupied):
+        if start < previous_end:
+            raise PointCloudError(f"PointCloud2: fields {previous!r} and {name!r} overlap")
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
 
 
@@ -135,39 +152,127 @@ def _data_bytes(data: object) -> memoryview:
         return memoryview(np.ascontiguousarray(data, dtype=np.uint8).tobytes())
     if isinstance(data, bytes | bytearray | memoryview | array.array):  # array.array('B') from rclpy: no copy
         return memoryview(data).cast("B")
-    return memoryview(bytes(data))  # type: ignore[call-overload]  # any other sequence of bytes
+    try:
+        return memoryview(bytes(data))  # type: ignore[call-overload]  # any other sequence of bytes
+    except (TypeError, ValueError) as error:
+        raise PointCloudError(f"PointCloud2: data is not a sequence of bytes ({error})") from None
 
 
-def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
-    """The cloud's points as a 1-D structured array (height x width points, row-major).
+def _integer(msg: PointCloud2Like, name: str) -> int:
+    try:
+        return int(getattr(msg, name))
+    except (AttributeError, TypeError, ValueError) as error:
+        raise PointCloudError(f"PointCloud2: {name} is not an integer ({error})") from None
 
-    Every field of the source is kept with its datatype and offset; x, y and z are
-    required (any numeric datatype). Raises PointCloudError naming the problem.
-    """
-    dtype = pointfields_to_dtype(msg.fields, int(msg.point_step), bool(msg.is_bigendian))
+
+def _checked_layout(msg: PointCloud2Like) -> tuple[np.dtype, int, int]:
+    """The dtype of one point, height and width, with x, y and z present as single numbers of any datatype."""
+    point_step = _integer(msg, "point_step")
+    if point_step > _MAX_POINT_STEP:  # numpy's itemsize is a C int
+        raise PointCloudError(f"PointCloud2: point_step {point_step} is larger than any point layout")
+    dtype = pointfields_to_dtype(msg.fields, point_step, bool(msg.is_bigendian))
     names = dtype.names or ()
     missing = [name for name in POINT_XYZ_FIELDS if name not in names]
     if missing:
         raise PointCloudError(f"PointCloud2 without {', '.join(missing)} field(s): has fields {list(names)}")
-    height, width, point_step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
+    arrays = [name for name in POINT_XYZ_FIELDS if dtype[name].shape]
+    if arrays:
+        raise PointCloudError(f"PointCloud2: field(s) {', '.join(arrays)} have count > 1; x, y, z are single numbers")
+    height, width = _integer(msg, "height"), _integer(msg, "width")
     if height < 0 or width < 0:
         raise PointCloudError(f"PointCloud2: negative size {height} x {width}")
+    return dtype, height, width
+
+
+def _cloud_rows(msg: PointCloud2Like) -> tuple[np.dtype, np.ndarray]:
+    """The point dtype and a (height, width * point_step) uint8 view of the message's bytes, sizes checked;
+    for a cloud without points, a (0, 0) array of points (the other dimension may be any number)."""
+    dtype, height, width = _checked_layout(msg)
+    point_step, row_step = dtype.itemsize, _integer(msg, "row_step")
     if height * width == 0:
-        return np.zeros(0, dtype=dtype)
+        return dtype, np.zeros((0, 0), dtype=dtype)
     if row_step < width * point_step:
         raise PointCloudError(f"PointCloud2: row_step {row_step} is less than width {width} x point_step {point_step}")
     data = _data_bytes(msg.data)
+    # Python ints: a declared size of any magnitude is compared with the bytes there before anything is allocated
     needed = row_step * (height - 1) + width * point_step
     if len(data) < needed:
         raise PointCloudError(
             f"PointCloud2: data has {len(data)} bytes, {height} x {width} points need at least {needed}"
         )
     raw = np.frombuffer(data, dtype=np.uint8, count=needed)
-    if row_step != width * point_step:  # rows padded beyond width * point_step: gather the rows
-        raw = np.lib.stride_tricks.as_strided(raw, shape=(height, width * point_step), strides=(row_step, 1))
+    if row_step == width * point_step:
+        return dtype, raw.reshape(height, width * point_step)
+    # rows padded beyond width * point_step: a strided view skips the padding
+    return dtype, np.lib.stride_tricks.as_strided(raw, shape=(height, width * point_step), strides=(row_step, 1))
+
+
+def cloud_view(msg: PointCloud2Like) -> np.ndarray:
+    """The cloud's points as a (height, width) structured view of the message's bytes, without a copy
+    ((0, 0) when it has no points).
+
+    Checks everything cloud_to_points checks; for looking at clouds (layout, finite points)
+    without decoding them.
+    """
+    dtype, rows = _cloud_rows(msg)
+    return rows if rows.dtype == dtype else rows.view(dtype)
+
+
+def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
+    """The cloud's points as a 1-D structured array (height x width points, row-major).
+
+    Every field of the source is kept with its datatype and offset; x, y and z are
+    required (any numeric datatype, count 1). Raises PointCloudError naming the problem.
+    """
+    dtype, rows = _cloud_rows(msg)
+    if rows.dtype == dtype:
+        return rows.reshape(-1)  # no points
     # One copy of the bytes, viewed as points: padding between fields survives (a structured .copy() leaves
     # it undefined), and the points own their memory, writable, apart from the message's buffer.
-    return raw.copy().reshape(-1).view(dtype)
+    return rows.copy().reshape(-1).view(dtype)
+
+
+def finite_mask(points: np.ndarray) -> np.ndarray:
+    """Which points have finite x, y and z (integer coordinates always are)."""
+    mask = np.ones(points.shape, dtype=bool)
+    for name in POINT_XYZ_FIELDS:
+        values = points[name]
+        if values.dtype.kind == "f":
+            mask &= np.isfinite(values)
+    return mask
+
+
+def finite_points(points: np.ndarray) -> tuple[np.ndarray, int]:
+    """The 1-D points whose x, y and z are finite, every field and padding byte kept, and how many were dropped."""
+    mask = finite_mask(points)
+    dropped = int(mask.size - np.count_nonzero(mask))
+    if not dropped:
+        return points, 0
+    if points.flags.c_contiguous:  # whole records, bytes as they are (structured indexing may lose padding)
+        rows = points.view(np.uint8).reshape(points.shape[0], points.dtype.itemsize)
+        return rows[mask].reshape(-1).view(points.dtype), dropped
+    return points[mask], dropped
+
+
+@dataclass
+class DroppedPoints:
+    """Non-finite points dropped from a log's sweeps at ingestion, tallied for one line in the log."""
+
+    points: int = 0  # points dropped in all
+    sweeps: int = 0  # sweeps that lost at least one
+
+    def keep_finite(self, points: np.ndarray) -> np.ndarray:
+        kept, dropped = finite_points(points)
+        if dropped:
+            self.points += dropped
+            self.sweeps += 1
+        return kept
+
+    def report(self, log: logging.Logger, source: str, topic: str = "") -> None:
+        """One warning, e.g. ``bag X: dropped 12034 non-finite points in 154 sweeps of /sensor/lidar/points``."""
+        if self.points:
+            of = f" of {topic}" if topic else ""
+            log.warning("%s: dropped %d non-finite points in %d sweeps%s", source, self.points, self.sweeps, of)
 
 
 def points_to_cloud_fields(points: np.ndarray) -> tuple[tuple[PointFieldSpec, ...], int]:

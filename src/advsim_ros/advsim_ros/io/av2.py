@@ -17,6 +17,7 @@ midlines of each vehicle or bus lane segment's boundaries.
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ import pyarrow as pa
 import pyarrow.feather as feather
 from scipy.spatial.transform import Rotation
 
+from advsim_ros.contract.pointcloud import DroppedPoints
 from advsim_ros.core.types import (
     ActorClass,
     ActorTrack,
@@ -37,6 +39,8 @@ from advsim_ros.core.types import (
     ScenarioError,
     Sweep,
 )
+
+log = logging.getLogger(__name__)
 
 AV2_SENSOR_FRAME = "egovehicle"  # AV2 publishes merged sweeps in the ego-vehicle frame
 AV2_EGO_CATEGORY = "EGO_VEHICLE"  # annotations_with_ego.feather labels the ego itself; used for its size
@@ -260,6 +264,7 @@ def load_av2_log(log_dir: Path) -> Scenario:
     actors, ego_size = _tracks(annotations, annotations_path, frames, ego_poses)
     frame_index = {int(stamp): index for index, stamp in enumerate(frames.tolist())}
     sweeps = []
+    dropped = DroppedPoints()
     for path in sorted((log_dir / "sensors" / "lidar").glob("*.feather")):
         try:
             stamp = int(path.stem)
@@ -271,10 +276,11 @@ def load_av2_log(log_dir: Path) -> Scenario:
             Sweep(
                 stamp_ns=stamp,
                 frame_id=AV2_SENSOR_FRAME,
-                points=_read_sweep(path),
+                points=dropped.keep_finite(_read_sweep(path)),
                 sensor_pose=ego_poses[frame_index[stamp]],
             )
         )
+    dropped.report(log, f"Argoverse 2 log {log_dir}")
     return Scenario(
         scenario_id=f"av2_{log_dir.name}",
         frame_stamps_ns=frames,

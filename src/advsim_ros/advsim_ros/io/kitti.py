@@ -19,6 +19,7 @@ sweep's pose. Sweeps are 10 Hz; label frame n is sweep n. DontCare labels are dr
 from __future__ import annotations
 
 import hashlib
+import logging
 import lzma
 import re
 import shutil
@@ -30,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from advsim_ros.contract.pointcloud import DroppedPoints
 from advsim_ros.core.types import (
     ActorClass,
     ActorTrack,
@@ -42,6 +44,8 @@ from advsim_ros.core.types import (
     Sweep,
 )
 from advsim_ros.io.cache import cache_root
+
+log = logging.getLogger(__name__)
 
 KITTI_FRAME_PERIOD_NS = 100_000_000  # 10 Hz Velodyne [ns]
 # KITTI tracking has no per-frame timestamps; frame n is stamped KITTI_START_NS + n * period.
@@ -382,15 +386,17 @@ def load_kitti_tracking(root: Path, seq: str, poses: Path | None = None, *, pose
     stamps = KITTI_START_NS + KITTI_FRAME_PERIOD_NS * np.arange(count, dtype=np.int64)
     ego_T_sensor = np.eye(4)
     ego_T_sensor[2, 3] = KITTI_VELODYNE_HEIGHT
+    dropped = DroppedPoints()
     sweeps = tuple(
         Sweep(
             stamp_ns=int(stamps[index]),
             frame_id=KITTI_SENSOR_FRAME,
-            points=read_velodyne_bin(file),
+            points=dropped.keep_finite(read_velodyne_bin(file)),
             sensor_pose=T_world_velo[index],
         )
         for index, file in enumerate(sweep_files)
     )
+    dropped.report(log, f"KITTI {kitti_velodyne_dir(root, seq)}")
     return Scenario(
         scenario_id=f"kitti_tracking_{seq}",
         frame_stamps_ns=stamps,

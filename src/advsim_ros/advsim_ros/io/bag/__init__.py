@@ -8,7 +8,14 @@ and the ego pose (odometry or /tf). Modules: ``config`` (topics and frames), ``s
 
 from advsim_ros.io.bag.config import BagConfig, BagError, load_bag_config
 from advsim_ros.io.bag.read import read_scenario_bag
-from advsim_ros.io.bag.storage import BagReader, BagSummary, TopicSummary, iter_bag_sweeps, summarize_bag
+from advsim_ros.io.bag.storage import (
+    BagReader,
+    BagSummary,
+    TopicSummary,
+    check_lidar_sweeps,
+    iter_bag_sweeps,
+    summarize_bag,
+)
 from advsim_ros.io.bag.write import write_scenario_bag
 
 __all__ = [
@@ -17,6 +24,7 @@ __all__ = [
     "BagReader",
     "BagSummary",
     "TopicSummary",
+    "check_lidar_sweeps",
     "iter_bag_sweeps",
     "load_bag_config",
     "read_scenario_bag",

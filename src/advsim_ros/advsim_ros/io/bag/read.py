@@ -17,13 +17,14 @@ from rosbags.interfaces import Connection
 
 from advsim_ros.contract import names
 from advsim_ros.contract.codec import ContractError, stamp_ns
+from advsim_ros.contract.pointcloud import DroppedPoints
 from advsim_ros.contract.scenario import drivable_area_from_grid, road_map_from_msg, scenario_info_from_msg
 from advsim_ros.contract.spatial import pose_matrix
 from advsim_ros.contract.tracks import TrackRecord, track_from_msg
 from advsim_ros.core.types import ActorTrack, EgoTrajectory, FloatArray, Scenario, ScenarioError, Sweep
 from advsim_ros.io.bag.config import BagConfig, BagError
 from advsim_ros.io.bag.poses import interpolate_poses, static_transform
-from advsim_ros.io.bag.storage import BagReader, cloud_points
+from advsim_ros.io.bag.storage import BagReader, cloud_points, log
 
 _NO_POINTS = np.zeros(0, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
 
@@ -38,6 +39,7 @@ class _Collected:
     static: dict[tuple[str, str], FloatArray] = field(default_factory=dict)  # (parent, child) -> T_parent_child
     tracks: list[tuple[int, Any]] = field(default_factory=list)
     clouds: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
+    dropped: DroppedPoints = field(default_factory=DroppedPoints)  # non-finite points left out of the clouds
 
 
 def _pose(translation: Any, rotation: Any, what: str) -> FloatArray:
@@ -51,6 +53,7 @@ def read_scenario_bag(path: Path, *, config: BagConfig | None = None, load_sweep
     """The scenario in a bag written by write_scenario_bag, or in a user's bag (topics from ``config``).
 
     ``load_sweeps=False`` skips decoding the point clouds (the sweeps come back empty).
+    Points with a non-finite x, y or z are dropped, their count logged once (a warning).
     Raises BagError naming the bag and the problem: truncated storage, a missing LiDAR
     topic, a PointCloud2 without x/y/z, NaN poses, inconsistent stamps.
     """
@@ -77,6 +80,7 @@ def read_scenario_bag(path: Path, *, config: BagConfig | None = None, load_sweep
         if lidar is not None and (load_sweeps or not own_bag):  # users' bags take their frames from the sweeps
             wanted.append(lidar)
         collected = _collect(bag, wanted, config, pose_conn, lidar, keep_points=load_sweeps)
+    collected.dropped.report(log, f"bag {path}", config.lidar_topic)
     return _assemble(path, collected, config, own_bag, load_sweeps)
 
 
@@ -116,7 +120,7 @@ def _collect(
         elif topic == config.info_topic:
             collected.info = decoded
         elif connection is lidar:
-            points = cloud_points(bag, topic, decoded, stamp) if keep_points else _NO_POINTS
+            points = cloud_points(bag, topic, decoded, stamp, collected.dropped) if keep_points else _NO_POINTS
             collected.clouds.append((stamp_ns(decoded.header.stamp), str(decoded.header.frame_id), points))
     return collected
 

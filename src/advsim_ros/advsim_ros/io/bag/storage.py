@@ -7,26 +7,122 @@ written by older versions of the project (or by other tools) decode with their o
 
 from __future__ import annotations
 
+import functools
+import io
+import logging
+import os
 import struct
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
+import apsw
 import numpy as np
+from lz4.frame import LZ4FrameDecompressor
 from rosbags.interfaces import Connection, MessageDefinitionFormat
-from rosbags.rosbag2 import Reader
+from rosbags.rosbag2 import Reader, storage_mcap
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import TypesysError
+from rosbags.typesys.base import Nodetype, TypesysError
 from rosbags.typesys.store import Typestore
 
 from advsim_ros.contract import codec, names
-from advsim_ros.contract.pointcloud import cloud_to_points
+from advsim_ros.contract.pointcloud import DroppedPoints, cloud_to_points, cloud_view, finite_mask
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag.config import BagConfig, BagError
+
+log = logging.getLogger(__name__)
+
+# What rosbags and the layers under it (ruamel.yaml, apsw/sqlite3, zstd, lz4, the CDR deserializer) raise on
+# truncated, corrupt or adversarial storage (a fuzz test found each). Caught around rosbags' own calls only,
+# at this one boundary, and raised as BagError naming the bag and what is wrong.
+_CORRUPT: tuple[type[BaseException], ...] = (
+    ReaderError, SerdeError, TypesysError, apsw.Error, storage_mcap.zstd.ZstdError, OSError, EOFError, MemoryError,
+    ArithmeticError, LookupError, ValueError, TypeError, AttributeError, AssertionError, RuntimeError, struct.error,
+)  # fmt: skip
+
+# rosbags decompresses an MCAP chunk whole and checks its size afterwards: a chunk that declares (or inflates to)
+# gigabytes would be allocated first. A chunk holds whole messages; no LiDAR sweep comes near this.
+MAX_CHUNK_BYTES = 1 << 30
+
+
+def _corrupt(what: str, error: BaseException) -> BagError:
+    detail = " ".join(str(error).split())[:300] or type(error).__name__  # one line (YAML errors span several)
+    return BagError(f"{what}: {detail}")
+
+
+# Fields the contract gained after bags were first written: older bags' own definitions lack them, and the
+# readers default them (contract/scenario.py, contract/tracks.py).
+_ADDED_LATER = {("advsim_msgs/msg/ScenarioInfo", "ego_forward_offset"), ("advsim_msgs/msg/ActorTrackArray", "run_id")}
+
+
+def _type_names(kind: Any) -> list[str]:
+    """The message types a rosbags field type refers to: (NAME, type), or arrays and sequences of those."""
+    node, detail = kind
+    if node == Nodetype.NAME:
+        return [detail]
+    if node in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+        return _type_names(detail[0])
+    return []
+
+
+def _difference(stored: list[tuple[str, Any]], expected: list[tuple[str, Any]]) -> str:
+    names, kinds = [f for f, _ in stored], dict(expected)
+    unknown = [f for f in names if f not in kinds]
+    missing = [f for f, _ in expected if f not in names]
+    retyped = [f for f, kind in stored if f in kinds and kinds[f] != kind]
+    found = (("unknown fields", unknown), ("lacks", missing), ("other types for", retyped))
+    return "; ".join(f"{what} {fields}" for what, fields in found if fields) or "fields in another order"
+
+
+def _count(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _bounded(decompressor: Callable[[], Any]) -> Callable[[bytes, int], bytes]:
+    """A chunk decompressor that never produces more than the chunk's declared size (frame after frame)."""
+
+    def decompress(data: bytes, size: int) -> bytes:
+        if size > MAX_CHUNK_BYTES:
+            raise ReaderError(f"an MCAP chunk declares {size} bytes uncompressed, more than {MAX_CHUNK_BYTES}")
+        out = bytearray()
+        while data:
+            frame = decompressor()
+            out += frame.decompress(data, max_length=size + 1 - len(out))
+            if len(out) > size:
+                raise ReaderError(f"an MCAP chunk decompresses to more than its declared {size} bytes")
+            if not frame.eof:
+                raise ReaderError("an MCAP chunk's compressed data is truncated")
+            data = frame.unused_data
+        return bytes(out)
+
+    return decompress
+
+
+def _read_within(stream: BinaryIO, size: int) -> bytes:
+    """rosbags' read_exact, refusing a size the file (or chunk) does not hold before read() allocates it."""
+    position = stream.tell()
+    if isinstance(stream, io.BytesIO):
+        remaining = stream.getbuffer().nbytes - position
+    else:
+        try:
+            remaining = os.fstat(stream.fileno()).st_size - position
+        except (OSError, ValueError):  # not a plain file: rosbags' own read
+            return _read_exact(stream, size)
+    if size > remaining:
+        raise ReaderError(f"a record at offset {position} declares {size} bytes; {remaining} follow")
+    return _read_exact(stream, size)
+
+
+# rosbags (pinned) reads MCAP records and chunks whole: sizes are checked against what is there first, and
+# decompression stops at the declared size, so a corrupt size never allocates more than the bag holds.
+_read_exact = getattr(storage_mcap.read_exact, "__wrapped__", storage_mcap.read_exact)  # once, if imported again
+_read_within.__wrapped__ = _read_exact  # type: ignore[attr-defined]
+storage_mcap.read_exact = _read_within
+storage_mcap.DECOMPRESSORS.update(zstd=_bounded(storage_mcap.zstd.ZstdDecompressor), lz4=_bounded(LZ4FrameDecompressor))
 
 
 class BagReader:
@@ -44,28 +140,32 @@ class BagReader:
         try:
             self.reader = Reader(self.path)
             self.reader.open()
-        except (ReaderError, OSError, KeyError, ValueError, TypeError) as error:
-            raise BagError(f"cannot open bag {self.path}, it is truncated or corrupt: {error}") from None
-        self.store = self._typestore()
-
-    def _typestore(self) -> Typestore:
-        """The bag's own message definitions first (it is self-describing), then codec.typestore()'s."""
-        store = get_typestore(Stores.EMPTY)
-        for connection in self.reader.connections:
-            if connection.msgdef.format != MessageDefinitionFormat.MSG or not connection.msgdef.data:
-                continue  # IDL or no definition stored (older sqlite3 bags): the defaults below decode it
-            try:
-                store.register(get_types_from_msg(connection.msgdef.data, connection.msgtype))
-            except TypesysError as error:
+        except _CORRUPT as error:
+            raise _corrupt(f"cannot open bag {self.path}, it is truncated or corrupt", error) from None
+        for c in self.reader.connections:
+            if not (isinstance(c.topic, str) and isinstance(c.msgtype, str) and _count(c.msgcount)):
+                self.reader.close()
                 raise BagError(
-                    f"bag {self.path}: topic {connection.topic} type {connection.msgtype}: {error}"
-                ) from None
-        defaults = codec.typestore().fielddefs
-        store.register({name: value for name, value in defaults.items() if name not in store.fielddefs})
-        return store
+                    f"bag {self.path}: its metadata lists topic {c.topic!r} of type {c.msgtype!r} with "
+                    f"{c.msgcount!r} messages; expected a topic name, a type name and a message count"
+                )
+        definitions = tuple(
+            (c.topic, c.msgtype, c.msgdef.data)
+            for c in self.reader.connections
+            # IDL or no definition stored (older sqlite3 bags): codec.typestore()'s decodes it
+            if c.msgdef.format == MessageDefinitionFormat.MSG and c.msgdef.data
+        )
+        try:
+            self.store = _typestore(definitions, frozenset(c.msgtype for c in self.reader.connections))
+        except _CORRUPT as error:
+            self.reader.close()
+            raise _corrupt(f"bag {self.path}: its message definitions", error) from None
 
     def close(self) -> None:
-        self.reader.close()
+        try:
+            self.reader.close()
+        except _CORRUPT as error:
+            raise _corrupt(f"bag {self.path}: closing it", error) from None
 
     def __enter__(self) -> BagReader:
         return self
@@ -83,19 +183,41 @@ class BagReader:
             return None
         if any(c.msgtype != msgtype for c in matches):
             raise BagError(f"bag {self.path}: topic {topic} has type {matches[0].msgtype}, expected {msgtype}")
+        self._check_definition(topic, msgtype)
         return matches[0]
+
+    def _check_definition(self, topic: str, msgtype: str) -> None:
+        """The bag's own definition of a type the contract reads (and of the types inside it) has the contract's
+        fields, in order, with their types; older bags may lack the fields added since (_ADDED_LATER)."""
+        contract = codec.typestore().fielddefs
+        pending, seen = [msgtype], set()
+        while pending:
+            name = pending.pop()
+            if name in seen or name not in contract:
+                continue
+            seen.add(name)
+            stored = list(self.store.fielddefs[name][1])
+            present = {field for field, _ in stored}
+            expected = [(f, kind) for f, kind in contract[name][1] if f in present or (name, f) not in _ADDED_LATER]
+            if stored != expected:
+                raise BagError(
+                    f"bag {self.path}: topic {topic}: the bag's own definition of {name} is not the one advsim_ros "
+                    f"reads ({_difference(stored, expected)}): a corrupt bag, or another message of that name"
+                )
+            pending += [reference for _, kind in expected for reference in _type_names(kind)]
 
     def messages(self, connections: list[Connection]) -> Iterator[tuple[Connection, int, Any]]:
         """Decoded messages of these connections in time order; BagError on truncated or corrupt storage."""
         for connection, stamp, raw in self.raw_messages(connections):
-            try:
-                decoded = self.store.deserialize_cdr(raw, connection.msgtype)
-            except (SerdeError, ValueError, IndexError, AssertionError, struct.error) as error:
-                raise BagError(
-                    f"bag {self.path}: message on {connection.topic} at {stamp} ns cannot be decoded "
-                    f"as {connection.msgtype} (corrupt or truncated): {error}"
-                ) from None
-            yield connection, stamp, decoded
+            yield connection, stamp, self.decode(connection, stamp, raw)
+
+    def decode(self, connection: Connection, stamp: int, raw: bytes) -> Any:
+        """One message's CDR bytes decoded; BagError naming the topic and stamp when they are corrupt."""
+        try:
+            return self.store.deserialize_cdr(raw, connection.msgtype)
+        except _CORRUPT as error:
+            what = f"bag {self.path}: message on {connection.topic} at {stamp} ns cannot be decoded as "
+            raise _corrupt(f"{what}{connection.msgtype} (corrupt or truncated)", error) from None
 
     def raw_messages(self, connections: list[Connection]) -> Iterator[tuple[Connection, int, bytes]]:
         """CDR bytes of these connections in time order; checks every message listed in metadata is there."""
@@ -104,10 +226,10 @@ class BagReader:
             for connection, stamp, raw in self.reader.messages(connections=connections):
                 counts[connection.id] += 1
                 yield connection, stamp, raw
-        except (ReaderError, OSError, EOFError) as error:
-            raise BagError(f"bag {self.path} is truncated or corrupt: {error}") from None
+        except _CORRUPT as error:
+            raise _corrupt(f"bag {self.path} is truncated or corrupt", error) from None
         for connection in connections:
-            expected = int(connection.msgcount)
+            expected = connection.msgcount
             if counts[connection.id] < expected:
                 raise BagError(
                     f"bag {self.path} is truncated: metadata lists {expected} messages on {connection.topic} "
@@ -135,6 +257,38 @@ class BagSummary:
     size_bytes: int = 0  # storage files on disk [bytes]
 
 
+@functools.lru_cache(maxsize=16)
+def _typestore(definitions: tuple[tuple[str, str, str], ...], msgtypes: frozenset[str]) -> Typestore:
+    """The bag's own message definitions (topic, type, text) first, as it is self-describing, then
+    codec.typestore()'s for the types its topics (``msgtypes``) need and it lacks. Cached, and only
+    what the topics need: registering every known type took ~0.1 s per bag opened."""
+    store = get_typestore(Stores.EMPTY)
+    for topic, msgtype, text in definitions:
+        try:
+            store.register(get_types_from_msg(text, msgtype))
+        except TypesysError as error:
+            raise TypesysError(f"topic {topic} type {msgtype}: {error}") from None
+    defaults = codec.typestore().fielddefs
+    added: dict[str, Any] = {}
+    seen: set[str] = set()
+    pending = list(msgtypes)
+    while pending:
+        name = pending.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        if name in store.fielddefs:
+            fields = store.fielddefs[name][1]
+        elif name in defaults:
+            added[name] = defaults[name]
+            fields = defaults[name][1]
+        else:
+            continue  # unknown: decoding it names the type
+        pending += [ref for _, kind in fields for ref in _type_names(kind)]
+    store.register(added)
+    return store
+
+
 def summarize_bag(path: Path) -> BagSummary:
     """Topics, message counts, time span and size of a bag (reads only its metadata and index)."""
     with BagReader(Path(path)) as bag:
@@ -146,30 +300,65 @@ def summarize_bag(path: Path) -> BagSummary:
         root = Path(path)
         files = [p for p in root.iterdir() if p.suffix in (".mcap", ".db3")] if root.is_dir() else [root]
         storage = "sqlite3" if any(p.suffix == ".db3" for p in files) else "mcap"
+        try:
+            start_ns, end_ns = (int(reader.start_time), int(reader.end_time)) if reader.message_count else (0, 0)
+        except _CORRUPT as error:  # metadata.yaml's own numbers
+            raise _corrupt(f"bag {path}: metadata.yaml gives no time span", error) from None
         return BagSummary(
             path=Path(path),
             storage=storage,
             topics=topics,
-            start_ns=int(reader.start_time) if reader.message_count else 0,
-            end_ns=int(reader.end_time) if reader.message_count else 0,
+            start_ns=start_ns,
+            end_ns=end_ns,
             size_bytes=sum(p.stat().st_size for p in files),
         )
 
 
-def cloud_points(bag: BagReader, topic: str, cloud: Any, stamp: int) -> np.ndarray:
-    """The points of a PointCloud2 read from a bag; BagError naming the topic and stamp when unreadable."""
+def cloud_points(bag: BagReader, topic: str, cloud: Any, stamp: int, dropped: DroppedPoints) -> np.ndarray:
+    """The points of a PointCloud2 read from a bag, those with non-finite x, y or z dropped (tallied in
+    ``dropped``: organised clouds mark missing returns with NaN); BagError naming the topic and stamp when
+    the cloud is unreadable."""
     try:
-        return cloud_to_points(cloud)
+        return dropped.keep_finite(cloud_to_points(cloud))
     except ScenarioError as error:
         raise BagError(f"bag {bag.path}: LiDAR topic {topic} at {stamp} ns: {error}") from None
+
+
+def check_lidar_sweeps(path: Path, config: BagConfig, stamps: Collection[int]) -> set[int]:
+    """The header stamps of a bag's LiDAR sweeps, each cloud checked without copying its points.
+
+    Every cloud must be readable (x, y, z present as single numbers, sizes that its data holds);
+    the sweeps at ``stamps`` (header stamps [ns]) must have at least one point with finite x, y
+    and z. BagError naming the bag, topic and stamp otherwise.
+    """
+    wanted = set(stamps)
+    found: set[int] = set()
+    with BagReader(Path(path)) as bag:
+        lidar = bag.connection(config.lidar_topic, names.POINTCLOUD2, required="LiDAR (sensor_msgs/msg/PointCloud2)")
+        assert lidar is not None
+        for _, stamp, cloud in bag.messages([lidar]):
+            try:
+                points = cloud_view(cloud)
+            except ScenarioError as error:
+                raise BagError(f"bag {bag.path}: LiDAR topic {lidar.topic} at {stamp} ns: {error}") from None
+            header_stamp = codec.stamp_ns(cloud.header.stamp)
+            found.add(header_stamp)
+            if header_stamp in wanted and not np.any(finite_mask(points)):
+                raise BagError(
+                    f"bag {bag.path}: LiDAR topic {lidar.topic} at {header_stamp} ns: the sweep has no valid point "
+                    f"({points.size} points, none with finite x, y and z)"
+                )
+    return found
 
 
 def iter_bag_sweeps(path: Path, config: BagConfig | None = None) -> Iterator[tuple[int, str, np.ndarray]]:
     """(stamp [ns], frame_id, structured points) of every cloud on the LiDAR topic, one at a time."""
     config = config or BagConfig()
+    dropped = DroppedPoints()
     with BagReader(Path(path)) as bag:
         lidar = bag.connection(config.lidar_topic, names.POINTCLOUD2, required="LiDAR")
         assert lidar is not None
         for _, stamp, cloud in bag.messages([lidar]):
-            points = cloud_points(bag, lidar.topic, cloud, stamp)
+            points = cloud_points(bag, lidar.topic, cloud, stamp, dropped)
             yield codec.stamp_ns(cloud.header.stamp), str(cloud.header.frame_id), points
+    dropped.report(log, f"bag {path}", config.lidar_topic)
