@@ -12,7 +12,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-QUERIES = 6  # searched queries; with the original and two re-runs of the best: 9 in all
+QUERIES = 6  # searched queries
+# all queries: the original, the search's, two re-runs of the best, then the controls (the original twice more and
+# the identity control)
+ALL_QUERIES = 1 + QUERIES + 2 + 3
 FAST = ("--param", "perturber.num_candidates=20000")
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from attack_runs import QUERIES, alive, attack_argv, children, journaled, measured, started
+from attack_runs import ALL_QUERIES, QUERIES, alive, attack_argv, children, journaled, measured, started
 
 from advsim_ros.ros.launcher import graph_environment, wait_for
 
@@ -80,7 +80,7 @@ def test_kill_9_of_advsim_attack_leaves_no_process_behind_and_the_same_command_r
     final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
     assert final.returncode == 0, final.stderr
     assert started(player_log, offset).isdisjoint(journaled_before)
-    assert journaled(out) == list(range(QUERIES + 3))  # every query exactly once
+    assert journaled(out) == list(range(ALL_QUERIES))  # every query exactly once
     summary = json.loads((out / "summary.json").read_text())
     assert measured(summary) == measured(reference)  # as if it had never been interrupted
     assert _timeless(summary["best"]) == _timeless(reference["best"])
@@ -148,7 +148,7 @@ def test_a_full_disk_ends_the_attack_with_one_line_keeps_every_finished_query_an
         filler.unlink()  # space freed: the same command resumes and measures what an undisturbed run did
         final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
         assert final.returncode == 0, final.stderr
-        assert journaled(out) == list(range(QUERIES + 3))
+        assert journaled(out) == list(range(ALL_QUERIES))
         summary = json.loads((out / "summary.json").read_text())
     assert measured(summary) == measured(reference)
 
@@ -168,7 +168,7 @@ def test_two_evaluation_lanes_measure_what_one_does_and_kill_9_leaves_nothing_of
     _kill_9_at(argv, lambda: bool(started(second_lane, 0)), out, zombie_shm_segments)
     final = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
     assert final.returncode == 0, final.stderr
-    assert sorted(journaled(out)) == list(range(QUERIES + 3))  # journaled as they finish, each exactly once
+    assert sorted(journaled(out)) == list(range(ALL_QUERIES))  # journaled as they finish, each exactly once
     summary = json.loads((out / "summary.json").read_text())
     assert summary["search"]["lanes"] == 2
     assert any(name.startswith("lane1/") for name in summary["resources"]["processes"])
@@ -211,7 +211,7 @@ def test_an_attack_suspended_while_its_graph_searches_on_journals_every_query_wh
     stack, reference = uninterrupted
     out = tmp_path / "suspended"
     player_log = out / "run" / "logs" / "graph_nodes.log"
-    last_query = QUERIES + 2  # the second re-run of the best
+    last_query = ALL_QUERIES - 1  # the identity control
     orchestrator = subprocess.Popen(attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
                                     stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:

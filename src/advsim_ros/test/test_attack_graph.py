@@ -62,9 +62,10 @@ def test_an_attack_scores_every_query_without_dropping_frames_and_records_what_t
     out, summary = reference_attack
     assert json.loads((out / "summary.json").read_text()) == summary
     queries = summary["queries"]
-    # the original, the search's queries, then two re-runs of the best
-    assert [q["query_id"] for q in queries] == list(range(QUERIES + 3))
-    assert [q["algorithm"] for q in queries] == ["original"] + ["random"] * QUERIES + ["rerun", "rerun"]
+    # the original, the search's queries, two re-runs of the best, then the controls
+    assert [q["query_id"] for q in queries] == list(range(QUERIES + 6))
+    controls = ["original", "original", "identity"]
+    assert [q["algorithm"] for q in queries] == ["original"] + ["random"] * QUERIES + ["rerun", "rerun", *controls]
     assert all(q["score"]["status"] == "ok" for q in queries), queries
     assert {q["score"]["sweeps_delivered"] for q in queries} == {10}  # no frame dropped
     assert {q["score"]["plans_received"] for q in queries} == {10}

@@ -58,11 +58,15 @@ def test_every_number_of_lanes_asks_the_same_queries_under_the_same_ids(name: st
     three, three_batches, _ = _drive(name, small_config, lanes=3)
     assert [_key(p) for p in one] == [_key(p) for p in three]
     assert set(one_batches) == {1}
-    # the original alone, the search in the algorithm's whole batches, then the two re-runs together
+    # the original alone, the search in the algorithm's whole batches, then the two re-runs together, then the
+    # controls together: the original twice more and the identity control (the actors where they were logged)
     assert three_batches[0] == 1
-    assert three_batches[-1] == 2
+    assert three_batches[-2:] == [2, 3]
     assert [p.query_id for p in three] == list(range(len(three)))
-    assert [p.algorithm for p in three][-2:] == ["rerun", "rerun"]
+    assert [p.algorithm for p in three][-5:] == ["rerun", "rerun", "original", "original", "identity"]
+    identity = three[-1]
+    assert identity.actor_ids == three[-3 - 2].actor_ids
+    assert identity.delta.size == 0
     if name in ("random", "ga", "nes", "bo"):  # batches of several points: the lanes are used
         assert max(three_batches) > 1
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from advsim_ros.attack.checks import Preflight
+from advsim_ros.attack.controls import controls, finding
 from advsim_ros.attack.options import AttackOptions
 from advsim_ros.attack.params import section
 from advsim_ros.attack.summary import attack_summary, recorded_query
@@ -66,6 +67,10 @@ def write_outputs(
     records = journal.records
     analysis = attack_summary(records)
     window = checked.window
+    decision_ns = int(checked.scenario.frame_stamps_ns[window.window_start_frame + window.decision_index])
+    analysis["controls"] = controls(records, decision_ns)
+    best = analysis.get("best")
+    analysis["finding"] = finding(analysis, analysis["controls"], best.get("reproduction") if best else None)
     summary: dict[str, Any] = {
         "scenario": {
             "bag": str(checked.bag),

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from advsim_ros.core.journal import QueryRecord, ranked_queries
-from advsim_ros.core.search.driver import ORIGINAL, RERUN
+from advsim_ros.core.search.driver import NOT_SEARCHED, RERUN
 
 REPRODUCE_TOLERANCE = 1e-9  # relative |L_adv| difference still counted as the same value
 
@@ -59,7 +59,7 @@ class Reproduction:
 
 def reproductions(records: Sequence[QueryRecord]) -> list[Reproduction]:
     """Every searched query that was re-run, with its re-runs, best first."""
-    searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
+    searched = [r for r in records if r.algorithm not in NOT_SEARCHED]
     reruns = [r for r in records if r.algorithm == RERUN]
     found = []
     for query_id in ranked_queries({r.query_id: r.value for r in searched}, len(searched)):
@@ -83,7 +83,7 @@ def query_entry(record: QueryRecord) -> dict[str, Any]:
 def attack_summary(records: Sequence[QueryRecord]) -> dict[str, Any]:
     """The analysis part of summary.json (see docs/outputs.md)."""
     by_id = {record.query_id: record for record in records}
-    searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
+    searched = [r for r in records if r.algorithm not in NOT_SEARCHED]
     checked = reproductions(records)
     reproducible = [item for item in checked if item.reproduced]
     best_record = by_id[reproducible[0].query_id] if reproducible else None
@@ -117,7 +117,7 @@ def recorded_query(records: Sequence[QueryRecord]) -> QueryRecord | None:
     checked = reproductions(records)
     if checked:
         return checked[0].evaluations[-1]
-    searched = [r for r in records if r.algorithm not in (ORIGINAL, RERUN)]
+    searched = [r for r in records if r.algorithm not in NOT_SEARCHED]
     ranked = ranked_queries({r.query_id: r.value for r in searched}, 1)
     return next((r for r in searched if ranked and r.query_id == ranked[0]), None)
 

@@ -13,6 +13,8 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from advsim_ros.core.search.driver import NOT_SEARCHED
+
 # the metrics of one scored query that the report tabulates (advsim_msgs/QueryScore field names)
 METRICS = (
     "adversarial_loss",
@@ -86,10 +88,10 @@ def failed_row(identity: Mapping[str, Any], error: str, out_dir: str) -> dict[st
 
 
 def best_curve(summary: Mapping[str, Any]) -> list[float]:
-    """Best L_adv found after each searched query (the original and re-runs left out)."""
+    """Best L_adv found after each searched query (the original, re-runs and controls left out)."""
     best, curve = -math.inf, []
     for query in summary.get("queries", ()):
-        if query.get("algorithm") in ("original", "rerun"):
+        if query.get("algorithm") in NOT_SEARCHED:
             continue
         value = query.get("score", {}).get("adversarial_loss")
         if value is not None and math.isfinite(value):

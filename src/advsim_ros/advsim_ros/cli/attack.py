@@ -38,7 +38,10 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
         "--window-start", type=int, default=None, help="first frame of the 6 s window (default: the curated one)"
     )
     attack.add_argument(
-        "--reruns", type=int, default=2, help="evaluate the best query this many more times (default 2; 0: never)"
+        "--reruns",
+        type=int,
+        default=2,
+        help="evaluate the best query, and the original, this many more times (default 2; 0: never)",
     )
     attack.add_argument("--rerun-top", type=int, default=1, help="re-run the N best queries (default 1)")
     attack.add_argument(
@@ -225,7 +228,8 @@ def _run_attack(args: argparse.Namespace) -> int:
 
 
 def _attack_and_report(options: AttackOptions) -> int:
-    progress = _progress_printer(options.queries + 1 + options.reruns * options.rerun_top)
+    # the original, the search, the re-runs of the best, then the controls: the original again and the identity
+    progress = _progress_printer(options.queries + 1 + options.reruns * (options.rerun_top + 1) + 1)
     try:
         for note in search_notes(options):
             where = f"--algo {options.algorithm} --queries {options.queries}"

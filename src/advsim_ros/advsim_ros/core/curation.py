@@ -314,20 +314,7 @@ def crop_frames(scenario: Scenario, first_frame: int, last_frame: int) -> Scenar
     first, last = int(scenario.frame_stamps_ns[first_frame]), int(scenario.frame_stamps_ns[last_frame])
     keep = (scenario.frame_stamps_ns >= first) & (scenario.frame_stamps_ns <= last)
     frames = scenario.frame_stamps_ns[keep]
-    actors = []
-    for actor in scenario.actors:
-        inside = (actor.stamps_ns >= first) & (actor.stamps_ns <= last)
-        if np.any(inside):
-            actors.append(
-                ActorTrack(
-                    actor_id=actor.actor_id,
-                    actor_class=actor.actor_class,
-                    size=actor.size,
-                    stamps_ns=actor.stamps_ns[inside],
-                    centers=actor.centers[inside],
-                    yaws=actor.yaws[inside],
-                )
-            )
+    actors = [cropped for actor in scenario.actors if (cropped := actor.between(first, last)) is not None]
     return Scenario(
         scenario_id=f"{scenario.scenario_id}@{first_frame}",
         frame_stamps_ns=frames,

@@ -105,6 +105,14 @@ class ActorTrack:
     def height(self) -> float:
         return float(self.size[2])  # [m]
 
+    def between(self, first_ns: int, last_ns: int) -> ActorTrack | None:
+        """The observations stamped first..last (inclusive); None when there is none."""
+        inside = (self.stamps_ns >= first_ns) & (self.stamps_ns <= last_ns)
+        if not np.any(inside):
+            return None
+        stamps, centers, yaws = self.stamps_ns[inside], self.centers[inside], self.yaws[inside]
+        return ActorTrack(self.actor_id, self.actor_class, self.size, stamps, centers, yaws)
+
 
 @dataclass(frozen=True, eq=False)
 class EgoTrajectory:

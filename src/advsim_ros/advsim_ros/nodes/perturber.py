@@ -3,8 +3,9 @@
 At start-up it builds the feasible sets of the window (core.feasibility.select_actors) and
 publishes the selection on /advsim/actor_selection (latched; the search sizes its delta from
 it). For each Perturbation it projects the delta onto the feasible sets and publishes the
-perturbed actors' whole-horizon trajectories for that query (latched). A delta that cannot be
-projected gets an `infeasible` QueryScore straight away, so the search goes on.
+perturbed actors' whole-horizon trajectories for that query (latched); for the identity control,
+their logged tracks over the window. A delta that cannot be projected gets an `infeasible`
+QueryScore straight away, so the search goes on.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from advsim_ros.contract.protocol import (
 )
 from advsim_ros.contract.tracks import TrackRecord, track_array_msg
 from advsim_ros.core.feasibility import PerturberConfig, Window, perturbation_names, select_actors
+from advsim_ros.core.search.driver import IDENTITY
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros.graph_node import run_node
@@ -61,6 +63,7 @@ class Perturber(ScenarioNode):
         self.selection_publisher = self.latch(
             topics.ACTOR_SELECTION, selection_msg(record, self.stamp, self.frame_id, self.run_id)
         )
+        self.identity = tuple(TrackRecord.from_actor_track(t) for t in self.selection.logged_tracks(scenario))
         self.publish_tracks = self.publisher(topics.PERTURBED_TRACKS)
         self.publish_score = self.publisher(topics.SCORE)
         self.subscribe(topics.PERTURBATION, self.on_perturbation)
@@ -70,12 +73,14 @@ class Perturber(ScenarioNode):
         query_id = perturbation.query_id
         self.trace("perturbation_received", query_id)
         try:
-            moved = self.selection.project_perturbation(perturbation)
+            moved = () if perturbation.algorithm == IDENTITY else self.selection.project_perturbation(perturbation)
         except ScenarioError as error:
             self.get_logger().warning(f"query {query_id} is infeasible: {error}")
             self.publish_score(score_msg(ScoreRecord(query_id, Status.INFEASIBLE, str(error)), self.run_id))
             return
         tracks = [TrackRecord.from_perturbed(trajectory) for trajectory in moved]
+        if perturbation.algorithm == IDENTITY:
+            tracks = list(self.identity)
         self.publish_tracks(track_array_msg(tracks, self.stamp, self.frame_id, query_id=query_id, run_id=self.run_id))
         self.trace("tracks_sent", query_id)
 

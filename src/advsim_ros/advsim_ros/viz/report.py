@@ -21,6 +21,7 @@ import numpy as np
 
 from advsim_ros.contract.tracks import TrackRecord
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.search.driver import NOT_SEARCHED
 from advsim_ros.core.types import ActorTrack
 from advsim_ros.viz.attack_view import AttackView, number
 
@@ -112,8 +113,8 @@ def history_svg(queries: Sequence[Mapping[str, Any]]) -> str:
         score = query.get("score") or {}
         loss = score.get("adversarial_loss")
         ok = score.get("status") == "ok" and loss is not None
-        if query.get("algorithm") == "rerun":
-            continue  # re-runs repeat a searched query: the history is the search's
+        if query.get("algorithm") in NOT_SEARCHED and query["query_id"] != 0:
+            continue  # re-runs and controls repeat or control a query: the history is the search's, from the original
         ids.append(int(query["query_id"]))
         values.append(float(loss) if ok and loss is not None else math.nan)
         failed.append(not ok)

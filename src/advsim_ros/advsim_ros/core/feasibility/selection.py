@@ -17,7 +17,7 @@ from advsim_ros.core.feasibility.pruning import PruningCounts
 from advsim_ros.core.feasibility.rollout import PerturbedTrajectory
 from advsim_ros.core.feasibility.window import Window, is_standing, window_observations
 from advsim_ros.core.geometry import box_distance
-from advsim_ros.core.types import DrivableArea, Perturbation, Scenario
+from advsim_ros.core.types import ActorTrack, DrivableArea, Perturbation, Scenario
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,13 @@ class ActorSelection:
 
     def project(self, delta: npt.ArrayLike) -> tuple[PerturbedTrajectory, ...]:
         return project(self.sets, delta)
+
+    def logged_tracks(self, scenario: Scenario) -> tuple[ActorTrack, ...]:
+        """The selected actors as the log has them over the window: what the identity control re-inserts."""
+        first = self.window.start_frame
+        stamps = scenario.frame_stamps_ns[first : first + self.window.num_steps]
+        tracks = (scenario.actor(actor_id).between(int(stamps[0]), int(stamps[-1])) for actor_id in self.actor_ids)
+        return tuple(track for track in tracks if track is not None)
 
     def project_perturbation(self, perturbation: Perturbation) -> tuple[PerturbedTrajectory, ...]:
         """A query's trajectories: none for the original scenario (empty delta), else the projection of its delta."""

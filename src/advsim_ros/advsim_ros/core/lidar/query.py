@@ -41,7 +41,10 @@ def query_sweep(
 ) -> np.ndarray:
     """The points (sweep's own fields) of the logged sweep with ``moved`` actors re-simulated, seen from world_T_ego.
 
-    Without moved actors the logged points come back unchanged (no model is needed then).
+    Every moved actor is re-simulated, also where its pose equals the logged one: the identity
+    control (the actors re-inserted on their logged tracks) then measures exactly the rendering
+    every perturbed actor gets. Without moved actors the logged points come back unchanged (no
+    model is needed then).
     """
     if not moved:
         return logged.points
@@ -49,4 +52,5 @@ def query_sweep(
         raise ValueError("query_sweep: actors moved but no re-simulation model was given")
     sweep = Sweep(logged.stamp_ns, logged.frame_id, logged.points, world_T_ego @ scenario.ego_T_sensor)
     world = replace_actors(scenario.actors, moved)
-    return model.resimulate(sweep, scenario.actors, world, rng=world_rng(seed, moved, logged.stamp_ns))
+    rng = world_rng(seed, moved, logged.stamp_ns)
+    return model.resimulate(sweep, scenario.actors, world, rng=rng, moved={track.actor_id for track in moved})

@@ -9,7 +9,10 @@ queries, their ids and (for a deterministic stack) their scores do not depend on
 Queries already in the journal are not evaluated again: their recorded values are told instead,
 which reproduces the run up to where it stopped because the algorithm is deterministic for its
 seed. After the budget, each of the ``rerun_top`` best queries is evaluated ``reruns`` more
-times (the best last), so the outputs can say whether a found failure reproduces.
+times (the best last), so the outputs can say whether a found failure reproduces. Then the
+controls: the original ``reruns`` more times (does the unperturbed scenario reproduce?) and the
+identity control, the perturbed actors re-inserted on their logged tracks through the
+re-simulation (what the simulator alone does to the stack; docs/attack.md, "Reading a finding").
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from advsim_ros.core.search.base import SearchAlgorithm
 from advsim_ros.core.types import FloatArray, Perturbation, ScenarioError
 
 ORIGINAL_QUERY = 0
-ORIGINAL, RERUN = "original", "rerun"  # algorithm names of the non-search queries
+ORIGINAL, RERUN, IDENTITY = "original", "rerun", "identity"  # algorithm names of the non-search queries
+NOT_SEARCHED = (ORIGINAL, RERUN, IDENTITY)
 
 EvaluateBatch = Callable[[Sequence[Perturbation]], list[float]]  # L_adv of each query, NaN when it failed
 
@@ -40,8 +44,9 @@ class DriverConfig:
     score_timeout: float = 900.0  # longest wait for one query's score [s, wall clock]
     journal_file: str = ""  # the attack's journal: finished queries to replay instead of recompute ("" = none)
     score_original: bool = True  # evaluate the unperturbed scenario first, as query 0
-    reruns: int = 2  # evaluations of each best query after the search (reproducibility check)
+    reruns: int = 2  # evaluations of each best query, and of the original, after the search (reproducibility check)
     rerun_top: int = 1  # how many of the best queries are re-run
+    identity_control: bool = True  # evaluate the perturbed actors on their logged tracks, re-simulated, last
     lane_domains: tuple[int, ...] = ()  # ROS domains of the further evaluation lanes (advsim attack --lanes)
     # The first query waits until this many readers of /advsim/perturbation are matched in every lane: a
     # latched topic gives a late reader only the last query (advsim attack: 2, the perturber and its monitor).
@@ -128,4 +133,12 @@ def drive_search(
         chunk = reruns[start : start + step]
         run([Perturbation(query_id + i, scenario_id, actor_ids, points[best], RERUN) for i, best in enumerate(chunk)])
         query_id += len(chunk)
+    controls = [Perturbation(query_id + i, scenario_id, (), np.zeros(0), ORIGINAL) for i in range(config.reruns)]
+    if config.identity_control and actor_ids:
+        controls.append(Perturbation(query_id + len(controls), scenario_id, actor_ids, np.zeros(0), IDENTITY))
+    step = 1 if lanes == 1 else max(1, len(controls))
+    for start in range(0, len(controls), step):
+        if stopped():
+            return run.queries
+        run(controls[start : start + step])
     return run.queries

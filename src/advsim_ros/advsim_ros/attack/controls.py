@@ -1,0 +1,109 @@
+"""Reading a finding: the attack's controls and whose failure the found scenario shows.
+
+Every attack evaluates, besides its search, two controls (core.search.driver):
+- the original again (``--reruns`` times): an original that does not reproduce makes every
+  comparison with it unreliable (``original_flaky``);
+- the identity control: the perturbed actors re-inserted on their own logged tracks through the
+  same re-simulation a perturbed actor gets. Its differences from the real original, ``sim_gap``,
+  are what the simulator alone does to the stack.
+
+A finding (the recorded query) is ``sim_dominated`` when its gain over the original does not exceed
+SIM_MARGIN times the identity control's deviation from the original, or when it is a collision and
+the identity control alone already collides where the original does not. docs/attack.md,
+"Reading a finding".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from advsim_ros.attack.summary import Reproduction
+from advsim_ros.core.journal import QueryRecord
+from advsim_ros.core.search.driver import IDENTITY, ORIGINAL
+from advsim_ros.core.types import Plan
+
+SIM_MARGIN = 2.0  # a finding must gain more than this many times what re-simulation alone moves L_adv
+PLAN_GAP_AT_S = (3.0, 5.0)  # where the two plans of the controls are compared [s after the decision]
+
+
+def _finite(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+
+
+def plan_gap(first: Plan | None, second: Plan | None, decision_ns: int, after_s: float) -> float | None:
+    """Distance between two plans' positions ``after_s`` after the decision [m] (None when either lacks it)."""
+    at = decision_ns + round(after_s * 1e9)
+    points = []
+    for plan in (first, second):
+        if plan is None or not plan.stamps_ns[0] <= at <= plan.stamps_ns[-1]:
+            return None
+        points.append([np.interp(at, plan.stamps_ns, plan.xy[:, axis]) for axis in (0, 1)])
+    return float(np.hypot(points[0][0] - points[1][0], points[0][1] - points[1][1]))
+
+
+def sim_gap(original: QueryRecord, identity: QueryRecord, decision_ns: int) -> dict[str, float | None]:
+    """What re-simulating the perturbed actors where they were changes: identity control minus the original."""
+
+    def difference(key: str) -> float | None:
+        values = [_finite(record.score.get(key)) for record in (identity, original)]
+        return None if values[0] is None or values[1] is None else values[0] - values[1]
+
+    return {
+        "adversarial_loss": difference("adversarial_loss"),
+        "collision_5s": difference("collision_5s"),
+        "detection_ap": difference("detection_ap"),
+        **{f"plan_l2_{s:.0f}s": plan_gap(original.plan, identity.plan, decision_ns, s) for s in PLAN_GAP_AT_S},
+    }
+
+
+def controls(records: Sequence[QueryRecord], decision_ns: int) -> dict[str, Any]:
+    """The controls' part of summary.json: the original's re-runs, the identity control, their sim gap."""
+    originals = tuple(sorted((r for r in records if r.algorithm == ORIGINAL), key=lambda r: r.query_id))
+    identity = next((r for r in records if r.algorithm == IDENTITY), None)
+    original = Reproduction(originals[0].query_id, originals).as_json() if len(originals) > 1 else None
+    gap = None
+    if originals and identity is not None and originals[0].ok and identity.ok:
+        gap = sim_gap(originals[0], identity, decision_ns)
+    return {
+        "original": original,
+        "original_flaky": None if original is None else not original["reproduced"],
+        "identity": None if identity is None else {"query_id": identity.query_id, "score": dict(identity.score)},
+        "sim_gap": gap,
+    }
+
+
+def finding(
+    summary: dict[str, Any], control: dict[str, Any], reproduction: dict[str, Any] | None
+) -> dict[str, Any] | None:
+    """What the recorded query shows and whether it counts as the stack's failure (None when nothing was found)."""
+    adversarial, original = summary.get("adversarial"), summary.get("original")
+    if not adversarial or not original or adversarial.get("status") != "ok" or original.get("status") != "ok":
+        return None
+    gain = float(adversarial["adversarial_loss"]) - float(original["adversarial_loss"])
+    gap = control["sim_gap"]
+    deviation = None if gap is None or gap["adversarial_loss"] is None else abs(gap["adversarial_loss"])
+    collision = adversarial.get("collision_5s") == 1.0
+    control_collides = gap is not None and gap["collision_5s"] == 1.0
+    sim_dominated = None if deviation is None else gain <= SIM_MARGIN * deviation or (collision and control_collides)
+    reproduced = None if reproduction is None else bool(reproduction["reproduced"])
+    reasons = []
+    if reproduced is False:
+        reasons.append("flaky: the found scenario did not reproduce")
+    if control["original_flaky"]:
+        reasons.append("original_flaky: the unperturbed scenario did not reproduce")
+    if sim_dominated:
+        reasons.append(f"sim_dominated: gain {gain:.3g}, identity control {deviation:.3g} (margin {SIM_MARGIN:g})")
+    return {
+        "collision": collision,
+        "original_collides": original.get("collision_5s") == 1.0,
+        "gain": gain,
+        "control_deviation": deviation,
+        "reproduced": reproduced,
+        "original_flaky": control["original_flaky"],
+        "sim_dominated": sim_dominated,
+        "excluded": reasons,
+    }
