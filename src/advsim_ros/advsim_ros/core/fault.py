@@ -1,9 +1,9 @@
 """Fault and avoidability of a colliding query: could an ego within its limits have avoided it, and who hit whom.
 
 A collision the search finds counts against the stack only if a careful and competent driver in the ego's
-place could have avoided it. This is the test of UN Regulation No. 157 (Automated Lane Keeping Systems),
-whose guidance on traffic disturbance critical scenarios separates preventable from unpreventable collisions
-by what a careful and competent human driver model does; that model only brakes (Mattas et al., 2022). Here
+place could have avoided it: the idea of UN Regulation No. 157 (Automated Lane Keeping Systems), whose
+guidance on traffic disturbance critical scenarios separates preventable from unpreventable collisions by
+what a careful and competent human driver model does; that model only brakes (Mattas et al., 2022). Here
 the reference driver is the ego itself within its own limits, with no reaction time (the stack plans from the
 decision), and it may also steer:
 
