@@ -9,8 +9,11 @@ Every attack evaluates, besides its search, two controls (core.search.driver):
 
 A finding (the recorded query) is ``sim_dominated`` when its gain over the original does not exceed
 SIM_MARGIN times the identity control's deviation from the original, or when it is a collision and
-the identity control alone already collides where the original does not. docs/attack.md,
-"Reading a finding".
+the identity control alone already collides where the original does not. Every colliding query
+gets its fault and avoidability (core.fault): could an ego within its limits have avoided every
+actor, and who moved into whom at the first contact. A finding counts as the stack's failure when
+it is a collision that reproduced, of an original that reproduced, not sim-dominated, and
+avoidable. docs/attack.md, "Reading a finding".
 """
 
 from __future__ import annotations
@@ -22,9 +25,13 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.attack.summary import Reproduction
+from advsim_ros.contract.plan import PLAN_STEP_NS
+from advsim_ros.core.closed_loop import executed_as_plan
+from advsim_ros.core.fault import classify_collision
 from advsim_ros.core.journal import QueryRecord
+from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.search.driver import IDENTITY, ORIGINAL
-from advsim_ros.core.types import Plan
+from advsim_ros.core.types import DrivableArea, Plan, Scenario
 
 SIM_MARGIN = 2.0  # a finding must gain more than this many times what re-simulation alone moves L_adv
 PLAN_GAP_AT_S = (3.0, 5.0)  # where the two plans of the controls are compared [s after the decision]
@@ -76,10 +83,38 @@ def controls(records: Sequence[QueryRecord], decision_ns: int) -> dict[str, Any]
     }
 
 
+def query_faults(
+    records: Sequence[QueryRecord],
+    scenario: Scenario,
+    decision_frame: int,
+    metrics: MetricsConfig,
+    drivable: DrivableArea | None,
+) -> dict[int, dict[str, Any]]:
+    """Fault and avoidability of every colliding query, by query id (closed loop: of what the ego drove)."""
+    decision_ns = int(scenario.frame_stamps_ns[decision_frame])
+    horizon_ns = round(max(metrics.horizons) * 1e9)
+    faults = {}
+    for record in records:
+        if not record.ok or record.score.get("collision_5s") != 1.0 or record.plan is None:
+            continue
+        plan = record.plan
+        if record.executed is not None:
+            plan = executed_as_plan(record.executed, decision_ns, PLAN_STEP_NS, horizon_ns)
+        fault = classify_collision(plan, scenario, record.tracks, decision_frame, metrics, drivable=drivable)
+        if fault is not None:
+            faults[record.query_id] = fault.as_json()
+    return faults
+
+
 def finding(
-    summary: dict[str, Any], control: dict[str, Any], reproduction: dict[str, Any] | None
+    summary: dict[str, Any],
+    control: dict[str, Any],
+    reproduction: dict[str, Any] | None,
+    fault: dict[str, Any] | None = None,
 ) -> dict[str, Any] | None:
-    """What the recorded query shows and whether it counts as the stack's failure (None when nothing was found)."""
+    """What the recorded query shows and whether it counts as the stack's failure (None when nothing was found).
+
+    ``fault``: the recorded query's fault and avoidability (query_faults), when it collides."""
     adversarial, original = summary.get("adversarial"), summary.get("original")
     if not adversarial or not original or adversarial.get("status") != "ok" or original.get("status") != "ok":
         return None
@@ -97,6 +132,9 @@ def finding(
         reasons.append("original_flaky: the unperturbed scenario did not reproduce")
     if sim_dominated:
         reasons.append(f"sim_dominated: gain {gain:.3g}, identity control {deviation:.3g} (margin {SIM_MARGIN:g})")
+    if fault is not None and fault["class"] == "unavoidable":
+        contact = fault["contact"]
+        reasons.append(f"unavoidable: no ego within its limits escapes ({contact['mover']}, {contact['side']})")
     return {
         "collision": collision,
         "original_collides": original.get("collision_5s") == 1.0,
@@ -105,5 +143,8 @@ def finding(
         "reproduced": reproduced,
         "original_flaky": control["original_flaky"],
         "sim_dominated": sim_dominated,
+        "fault": fault,
+        # the stack's failure: a collision that reproduced, of an original that did, not sim-dominated, avoidable
+        "counts_as_failure": collision and not reasons,
         "excluded": reasons,
     }

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from advsim_ros.attack.checks import Preflight
-from advsim_ros.attack.controls import controls, finding
+from advsim_ros.attack.controls import controls, finding, query_faults
 from advsim_ros.attack.options import AttackOptions
 from advsim_ros.attack.params import section
 from advsim_ros.attack.summary import attack_summary, recorded_query
@@ -42,7 +42,8 @@ from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.query import query_sweep
 from advsim_ros.core.lidar.resim import ResimModel
-from advsim_ros.core.types import Perturbation, Scenario, Sweep, replace_actors
+from advsim_ros.core.metrics import MetricsConfig
+from advsim_ros.core.types import DrivableArea, Perturbation, Scenario, Sweep, replace_actors
 from advsim_ros.io.bag import BagReader, read_scenario_bag, write_scenario_bag
 from advsim_ros.io.cache import cache_root
 from advsim_ros.io.drivable_cache import bag_drivable_area
@@ -67,10 +68,17 @@ def write_outputs(
     records = journal.records
     analysis = attack_summary(records)
     window = checked.window
-    decision_ns = int(checked.scenario.frame_stamps_ns[window.window_start_frame + window.decision_index])
-    analysis["controls"] = controls(records, decision_ns)
-    best = analysis.get("best")
-    analysis["finding"] = finding(analysis, analysis["controls"], best.get("reproduction") if best else None)
+    decision_frame = window.window_start_frame + window.decision_index
+    analysis["controls"] = controls(records, int(checked.scenario.frame_stamps_ns[decision_frame]))
+    drivable_config = section(checked.parameters["scorer"], "drivable", DrivableConfig, "drivable")
+    drivable = bag_drivable_area(checked.bag, checked.scenario, drivable_config, checked.bag_config)  # as scored
+    metrics = section(checked.parameters["scorer"], "metrics", MetricsConfig, "/scorer metrics")
+    faults = query_faults(records, checked.scenario, decision_frame, metrics, drivable)
+    for entry in analysis["queries"]:
+        entry["fault"] = faults.get(entry["query_id"])
+    best, recorded = analysis.get("best"), analysis.get("recorded_query_id")
+    reproduction = best.get("reproduction") if best else None
+    analysis["finding"] = finding(analysis, analysis["controls"], reproduction, faults.get(recorded))
     summary: dict[str, Any] = {
         "scenario": {
             "bag": str(checked.bag),
@@ -107,7 +115,7 @@ def write_outputs(
         summary["perturbed_actors"] = [] if not records else _perturbed_actors(records)
         recorded = recorded_query(records)
         if recorded is not None:
-            adversarial, reproduced = _write_adversarial_bag(out_dir, options, checked, scenario, recorded)
+            adversarial, reproduced = _write_adversarial_bag(out_dir, options, checked, scenario, recorded, drivable)
             summary["outputs"]["adversarial_bag"] = str(out_dir / ADVERSARIAL_BAG)
             summary["recorded_inputs_reproduced"] = reproduced
     write_json_atomically(out_dir / "summary.json", summary)
@@ -142,7 +150,12 @@ def _replay_runs(records: list[QueryRecord]) -> dict[str, Any]:
 
 
 def _write_adversarial_bag(
-    out_dir: Path, options: AttackOptions, checked: Preflight, scenario: Scenario, recorded: QueryRecord
+    out_dir: Path,
+    options: AttackOptions,
+    checked: Preflight,
+    scenario: Scenario,
+    recorded: QueryRecord,
+    drivable: DrivableArea | None,
 ) -> tuple[Scenario, bool]:
     """The recorded query's window as a scenario bag; whether its sweeps digest to what the stack received."""
     window = checked.window
@@ -169,8 +182,6 @@ def _write_adversarial_bag(
         digest.frame(stamp, codec.encode(odometry[index]), pose)
         digest.sweep(codec.encode(cloud_msg(sweep)))
         sweeps.append(sweep)
-    drivable_config = section(checked.parameters["scorer"], "drivable", DrivableConfig, "drivable")
-    drivable = bag_drivable_area(checked.bag, scenario, drivable_config, checked.bag_config)  # what the scorer used
     cropped = crop_frames(scenario, frames.start, frames.stop - 1)
     adversarial = Scenario(
         scenario_id=f"{cropped.scenario_id}/adversarial",

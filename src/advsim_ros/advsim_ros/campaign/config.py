@@ -52,7 +52,9 @@ TOP_KEYS = (
 )  # fmt: skip
 SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows")
 STACK_KEYS = ("name", "command", "remap", "remap_mode", "params")
-FAILURE_KEYS = ("collision", "adversarial_loss_above")
+FAILURE_KEYS = ("collision", "adversarial_loss_above", "exclude")
+# what keeps a found collision from counting as the stack's failure (attack.controls finding's reasons)
+EXCLUSIONS = ("flaky", "original_flaky", "sim_dominated", "unavoidable")
 SYNTHETIC_KEYS = ("seeds", "seed_range", "families")
 
 
@@ -77,11 +79,21 @@ class FailureRule:
 
     collision: bool = True  # a collision up to 5 s
     adversarial_loss_above: float | None = None  # or L_adv above this value
+    exclude: tuple[str, ...] = EXCLUSIONS  # a collision with any of these reasons is not the stack's failure
 
-    def failed(self, score: Mapping[str, Any] | None) -> bool:
+    def excluded(self, finding: Mapping[str, Any] | None) -> list[str]:
+        """The reasons of a finding (attack.controls) this rule excludes it for, e.g. ['unavoidable: ...']."""
+        reasons = (finding or {}).get("excluded") or []
+        return [reason for reason in reasons if str(reason).split(":")[0] in self.exclude]
+
+    def counts(self, entry: Mapping[str, Any]) -> bool:
+        """Whether a campaign journal entry of an attack holds a failure of its stack."""
+        return self.failed(entry.get("adversarial"), entry.get("finding"))
+
+    def failed(self, score: Mapping[str, Any] | None, finding: Mapping[str, Any] | None = None) -> bool:
         if not score:
             return False
-        if self.collision and (score.get("collision_5s") or 0.0) > 0.5:
+        if self.collision and (score.get("collision_5s") or 0.0) > 0.5 and not self.excluded(finding):
             return True
         loss = score.get("adversarial_loss")
         return self.adversarial_loss_above is not None and loss is not None and loss > self.adversarial_loss_above
@@ -314,6 +326,13 @@ def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
     return tuple(sources)
 
 
+def _exclusions(path: Path, failure: Mapping[str, Any]) -> tuple[str, ...]:
+    exclude = failure.get("exclude", list(EXCLUSIONS))
+    if not isinstance(exclude, list) or any(reason not in EXCLUSIONS for reason in exclude):
+        raise _fail(path, "failure.exclude", f"expected a list of {', '.join(EXCLUSIONS)}, got {exclude!r}")
+    return tuple(exclude)
+
+
 def load_campaign(path: Path) -> Campaign:
     """Read and check a campaign YAML (CampaignError naming the first problem)."""
     path = Path(path).resolve()
@@ -337,7 +356,8 @@ def load_campaign(path: Path) -> Campaign:
             raise _fail(path, "objectives", f"{name!r} is not one of {', '.join(PRESET_NAMES)}")
     failure = values.get("failure") or {}
     if not isinstance(failure, dict):
-        raise _fail(path, "failure", "expected {collision: true|false, adversarial_loss_above: VALUE|null}")
+        expected = "expected {collision: true|false, adversarial_loss_above: VALUE|null, exclude: [...]}"
+        raise _fail(path, "failure", expected)
     _unknown(path, "failure.", failure, FAILURE_KEYS)
     parameters = values.get("parameters") or {}
     if not isinstance(parameters, dict) or not all(isinstance(v, dict) for v in parameters.values()):
@@ -368,7 +388,9 @@ def load_campaign(path: Path) -> Campaign:
         reactive_actors=reactive_actors,
         reruns=reruns[0],
         transfer=bool(values.get("transfer", True)),
-        failure=FailureRule(bool(failure.get("collision", True)), failure.get("adversarial_loss_above")),
+        failure=FailureRule(
+            bool(failure.get("collision", True)), failure.get("adversarial_loss_above"), _exclusions(path, failure)
+        ),
         parameters=parameters,
         plan_timeout=float(plan_timeout),
     )

@@ -20,7 +20,7 @@ def write_campaign_outputs(config: Path, out_dir: Path, journal: CampaignJournal
     gallery = []
     for entry in journal.of_kind("attack"):
         row = entry["row"]
-        if not campaign.failure.failed(entry.get("adversarial")):
+        if not campaign.failure.counts(entry):
             continue
         picture = out_dir / row["out_dir"] / "bev.png"
         if picture.is_file():
@@ -28,6 +28,8 @@ def write_campaign_outputs(config: Path, out_dir: Path, journal: CampaignJournal
             gallery.append(
                 {"attack": row["attack"], "bev_png": picture, "bag": f"suite/{row['attack']}", "title": title}
             )
+    for entry in attacks:  # the campaign's failure rule decides what counts as the stack's failure
+        entry["row"]["failure"] = int(campaign.failure.counts(entry))
     written = write_report(
         out_dir,
         [entry["row"] for entry in attacks],

@@ -134,9 +134,22 @@ def table1(ok: Sequence[Mapping[str, Any]], stacks: Sequence[str], seed: int) ->
                 cells.append(cell(estimate, percent))
                 if percent:
                     rates[(stack, scenario, metric[-2:])] = tuple(100.0 * v for v in estimate[:3])
+            # the found collisions the failure rule counts as the stack's (reproduced, controls passed, avoidable)
+            failures = bootstrap_mean((row.get("failure") for row in mine), seed) if scenario == "adversarial" else None
+            cells.append(DASH if failures is None else cell(failures, True))
             rows.append(tuple(cells))
-    header = ("stack", "scenario", "n", *(label for _, label, _ in TABLE1_METRICS))
+    header = ("stack", "scenario", "n", *(label for _, label, _ in TABLE1_METRICS), "stack's failures [%]")
     return Table(header, tuple(rows)), rates
+
+
+def excluded_table(ok: Sequence[Mapping[str, Any]]) -> Table | None:
+    """The found collisions the failure rule does not count as the stack's failures, each with its reasons."""
+    shown = [
+        (str(row.get("attack")), str(row.get("stack")), str(row.get("excluded") or "").replace(";", ", "))
+        for row in ok
+        if _float(row.get("adversarial_collision_5s")) > 0.5 and not _truthy(row.get("failure"))
+    ]
+    return Table(("attack", "stack", "not counted because"), tuple(shown)) if shown else None
 
 
 def _labelled(row: Mapping[str, Any]) -> Mapping[str, Any]:
@@ -268,6 +281,13 @@ def _sections(
                                 f"Mean [bootstrap {LEVEL:.0%} interval] over the finished attacks; '{DASH}': "
                                 "the metric was not measured.", table, written["collision_plot"],
                                 "collision rates per stack, original vs adversarial"))  # fmt: skip
+    excluded = excluded_table(ok)
+    if excluded is not None:
+        sections.append(Section("excluded", "Collisions not counted as the stack's failures",
+                                "Found collisions the campaign's failure rule leaves out (failure.exclude): flaky "
+                                "(did not reproduce), original_flaky, sim_dominated (within the margin of what "
+                                "re-simulation alone does), unavoidable (no ego within its limits escapes). "
+                                "docs/attack.md, \"Reading a finding\".", excluded))  # fmt: skip
     closed = [row for row in ok if row.get("loop") == "closed"]
     if closed:
         sections.append(Section("loops", "Closed loop against open loop, on the same scenarios",

@@ -13,6 +13,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from advsim_ros.campaign.config import FailureRule
 from advsim_ros.core.search.driver import NOT_SEARCHED
 
 # the metrics of one scored query that the report tabulates (advsim_msgs/QueryScore field names)
@@ -39,6 +40,14 @@ COLUMNS = (
     "queries",  # scored queries (original and re-runs included)
     "failed_queries",
     "flaky",  # the best query did not reproduce when re-run
+    "original_flaky",  # the original did not reproduce when re-run (attack.controls)
+    "sim_gap_adversarial_loss",  # identity control minus original: what re-simulation alone does to L_adv
+    "sim_gap_plan_l2_5s",  # ... and to the plan at 5 s [m]
+    "sim_dominated",  # the finding does not gain more than the margin over the identity control's deviation
+    "fault",  # a colliding finding: avoidable | unavoidable by an ego within its limits (core.fault)
+    "mover",  # who moved into whom at its first contact: ego_into_actor | actor_into_ego | both
+    "excluded",  # why the finding is not counted as the stack's failure (reasons, ';'-separated)
+    "failure",  # 1 when the campaign's failure rule counts it as the stack's failure (campaign.outputs)
     "wall_s",
     "cpu_s",
     "peak_rss_mb",
@@ -69,6 +78,18 @@ def attack_row(
     row["queries"] = len(summary.get("queries", ()))
     row["failed_queries"] = int(summary.get("failed_queries", 0))
     row["flaky"] = bool(summary.get("flaky"))
+    controls, finding = summary.get("controls") or {}, summary.get("finding") or {}
+    gap = controls.get("sim_gap") or {}
+    fault = finding.get("fault") or {}
+    row["original_flaky"] = _flag(controls.get("original_flaky"))
+    row["sim_gap_adversarial_loss"] = _metric(gap, "adversarial_loss")
+    row["sim_gap_plan_l2_5s"] = _metric(gap, "plan_l2_5s")
+    row["sim_dominated"] = _flag(finding.get("sim_dominated"))
+    row["fault"] = fault.get("class", "")
+    row["mover"] = (fault.get("contact") or {}).get("mover", "")
+    row["excluded"] = ";".join(str(reason).split(":")[0] for reason in finding.get("excluded") or ())
+    # by the default rule; campaign.outputs applies the campaign's own (failure: in its config)
+    row["failure"] = int(FailureRule().failed(summary.get("adversarial"), summary.get("finding")))
     row["wall_s"] = float(cost.get("wall_s", math.nan))
     row["cpu_s"] = float(cost.get("cpu_s", math.nan))
     row["peak_rss_mb"] = float(cost.get("peak_rss_mb", math.nan))
@@ -78,11 +99,18 @@ def attack_row(
     return row
 
 
+def _flag(value: Any) -> bool | str:
+    """A yes/no column: '' when it was not measured (no re-runs, no identity control, nothing found)."""
+    return "" if value is None else bool(value)
+
+
 def failed_row(identity: Mapping[str, Any], error: str, out_dir: str) -> dict[str, Any]:
     """The row of an attack that could not run to its end (its metrics NaN, the error one line)."""
     row: dict[str, Any] = {key: identity.get(key, "open") for key in IDENTITY}
     row.update({f"{p}_{name}": math.nan for p in ("original", "adversarial") for name in METRICS})
-    row.update(status="failed", queries=0, failed_queries=0, flaky=False, wall_s=math.nan, cpu_s=math.nan)
+    row.update(status="failed", queries=0, failed_queries=0, flaky=False, wall_s=math.nan, cpu_s=math.nan, failure=0)
+    row.update(original_flaky="", sim_gap_adversarial_loss=math.nan, sim_gap_plan_l2_5s=math.nan, sim_dominated="")
+    row.update(fault="", mover="", excluded="")
     row.update(peak_rss_mb=math.nan, bag=str(identity["bag"]), out_dir=out_dir, error=error.splitlines()[0][:300])
     return row
 

@@ -79,7 +79,7 @@ def _attack_job(plan: AttackPlan, out_dir: Path, config_dir: Path) -> Job:
 def _transfer_jobs(campaign: Campaign, entry: dict[str, Any], out_dir: Path) -> Iterator[Job]:
     """Replays of a found failure on every other stack of the campaign."""
     row = entry["row"]
-    if not campaign.transfer or not entry.get("bag") or not campaign.failure.failed(entry.get("adversarial")):
+    if not campaign.transfer or not entry.get("bag") or not campaign.failure.counts(entry):
         return
     for target, stack_entry in campaign.stacks.items():
         if target == row["stack"]:
@@ -185,7 +185,7 @@ def run_campaign(
     finished = journal.of_kind("attack")
     replays = sum(1 for job in todo if job.spec["kind"] == "transfer")
     state = {"attacks": total_attacks, "done": len(finished), "errors": 0, "replays": replays, "replayed": 0}
-    state["failures"] = sum(1 for e in finished if campaign.failure.failed(e.get("adversarial")))
+    state["failures"] = sum(1 for e in finished if campaign.failure.counts(e))
     if progress is not None:
         progress(dict(state))
     if not todo:
@@ -211,7 +211,7 @@ def run_campaign(
             journal.append(job.name, entry)
             if job.spec["kind"] == "attack":
                 state["done" if outcome["ok"] else "errors"] += 1
-                if campaign.failure.failed(entry.get("adversarial")):
+                if campaign.failure.counts(entry):
                     state["failures"] += 1
                 transfers = list(_transfer_jobs(campaign, journal.entries[job.name], out_dir))
                 todo.extend(transfers)

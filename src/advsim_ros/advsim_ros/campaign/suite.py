@@ -31,7 +31,7 @@ def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: Fail
     scenarios = []
     for entry in attacks:
         row, bag = entry["row"], entry.get("bag")
-        if not bag or not rule.failed(entry.get("adversarial")):
+        if not bag or not rule.counts(entry):
             continue
         name = str(row["attack"])
         target = suite / name
@@ -44,6 +44,7 @@ def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: Fail
                 "name": name, "bag": name, "found_on": row["stack"], "scenario": row["scenario"],
                 "window_start": row["window_start"], "algorithm": row["algorithm"],
                 "recorded": {k: recorded.get(k) for k in ("adversarial_loss", "collision_3s", "collision_5s")},
+                "finding": finding_digest(entry.get("finding")),
             }
         )  # fmt: skip
     index = {
@@ -53,6 +54,22 @@ def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: Fail
     }
     write_json_atomically(suite / INDEX_NAME, index)
     return suite
+
+
+def finding_digest(finding: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """What a suite (or a report) says of a finding: reproduced, controls, fault class and who moved into whom."""
+    if not finding:
+        return None
+    fault = finding.get("fault") or {}
+    contact = fault.get("contact") or {}
+    return {
+        "reproduced": finding.get("reproduced"),
+        "original_flaky": finding.get("original_flaky"),
+        "sim_dominated": finding.get("sim_dominated"),
+        "fault": fault.get("class"),
+        "mover": contact.get("mover"),
+        "side": contact.get("side"),
+    }
 
 
 @dataclass(frozen=True)

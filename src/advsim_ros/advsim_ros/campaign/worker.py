@@ -48,7 +48,9 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         summary = run_attack(plan.options(out_dir, config_dir)).summary
         row = attack_row(plan.identity(), summary, _cost(summary, time.monotonic() - started), job["relative_dir"])
         bag = (summary.get("outputs") or {}).get("adversarial_bag")
-        return {"row": row, "curve": best_curve(summary), "adversarial": summary.get("adversarial"), "bag": bag}
+        finding = summary.get("finding")
+        return {"row": row, "curve": best_curve(summary), "adversarial": summary.get("adversarial"), "bag": bag,
+                "finding": finding}  # fmt: skip
     options = AttackOptions(
         bag=Path(job["bag"]), out_dir=out_dir, stack=stack_spec(job["stack_entry"], config_dir), queries=0,
         window_start_frame=0, replay_only=True, plan_timeout=float(job["plan_timeout"]), visual_report=False,
