@@ -1,8 +1,9 @@
 """The on-disk form of a built re-simulation model: its cache key and its arrays.
 
-The key (``scenario_digest``) hashes everything the model depends on, so a changed log or
-configuration builds anew instead of reading a stale file; ``model_arrays`` and ``model_parts``
-turn the model's parts into the named arrays of one .npz (core.lidar.cache) and back.
+The key (``scenario_digest``) hashes everything the model depends on, so a changed log,
+configuration or kind of machine (``core.numerics``) builds anew instead of reading a stale
+file; ``model_arrays`` and ``model_parts`` turn the model's parts into the named arrays of
+one .npz (core.lidar.cache) and back.
 """
 
 from __future__ import annotations
@@ -15,15 +16,17 @@ from advsim_ros.core.lidar.background import BackgroundModel
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.lidar.sensor import BeamRows
 from advsim_ros.core.lidar.surfels import SurfelCloud
+from advsim_ros.core.numerics import numerics_fingerprint
 from advsim_ros.core.types import ActorClass, Scenario, SensorModel
 
 MODEL_VERSION = "resim-model-6"  # bump when the built model's content changes meaning
 
 
 def scenario_digest(scenario: Scenario, config: ResimConfig) -> str:
-    """A hash of everything the built model depends on: sweeps, poses, tracks, settings."""
+    """A hash of everything the built model depends on: sweeps, poses, tracks, settings, the machine's numerics."""
     digest = Digest(MODEL_VERSION)
     digest.text(config.model_key())
+    digest.text(numerics_fingerprint())  # another CPU or library version builds other bits: its own file
     digest.array(scenario.frame_stamps_ns)
     for sweep in scenario.sweeps:
         digest.array(np.array([sweep.stamp_ns]))
