@@ -133,6 +133,7 @@ def test_the_shipped_smoke_config_is_valid() -> None:
         ),
         ({"stacks": [{"name": "x"}]}, "stacks[0]: a stack of your own needs a name and a command"),
         ({"stacks": [{"name": "x", "command": "no_such_stack_binary_here --go"}]}, "stacks[0]:"),
+        ({"failure": {"exclude": ["boring"]}}, "failure.exclude: expected a list of flaky, original_flaky"),
     ],
 )
 def test_a_mistake_is_one_line_naming_its_key(bag: Path, tmp_path: Path, change: dict[str, object], named: str) -> None:
@@ -180,6 +181,15 @@ def test_the_failure_rule() -> None:
         {"collision_5s": 0.0, "adversarial_loss": 11}
     )
     assert not FailureRule().failed(None)
+
+
+def test_the_failure_rule_leaves_out_the_collisions_a_finding_is_excluded_for_as_configured() -> None:
+    collision = {"collision_5s": 1.0, "adversarial_loss": 1.0}
+    unavoidable = {"excluded": ["unavoidable: no ego within its limits escapes (actor_into_ego, rear)"]}
+    assert not FailureRule().failed(collision, unavoidable)
+    assert FailureRule().failed(collision, {"excluded": []})
+    assert FailureRule(exclude=("flaky", "sim_dominated")).failed(collision, unavoidable)  # not excluded for that
+    assert FailureRule().counts({"adversarial": collision, "finding": unavoidable}) is False
 
 
 def test_a_bo_budget_its_initial_design_fills_gets_a_note_once(bag: Path, tmp_path: Path) -> None:

@@ -273,3 +273,25 @@ def test_a_campaign_without_finished_attacks_still_gets_its_report(tmp_path: Pat
         assert "Table 1:" not in markdown
         assert ("Table 5:" in markdown) == bool(rows)  # the campaign varies the algorithm: its levels show '–'
         assert len(written["results"].read_text().splitlines()) == 1 + len(rows)
+
+
+def test_table1_counts_the_stacks_failures_and_lists_the_collisions_left_out_with_their_reasons(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    rows = []
+    reasons = {"counted": [], "unavoidable": ["unavoidable: no ego within its limits escapes (actor_into_ego, rear)"],
+               "sim": ["sim_dominated: gain 1.2, identity control 0.9 (margin 2)"]}  # fmt: skip
+    for name, excluded in reasons.items():
+        summary = _summary(rng, collided=True, queries=4)
+        summary["finding"] = {"collision": True, "excluded": excluded}
+        cost = {"wall_s": 60.0, "cpu_s": 60.0, "peak_rss_mb": 800.0}
+        rows.append(attack_row(_identity(name, "modular"), summary, cost, f"attacks/{name}"))
+    assert [row["failure"] for row in rows] == [1, 0, 0]
+    assert [row["excluded"] for row in rows] == ["", "unavoidable", "sim_dominated"]
+    written = write_report(tmp_path, rows, [], {}, [])
+    markdown = written["markdown"].read_text()
+    assert "Collisions not counted as the stack's failures" in markdown
+    assert "| unavoidable | modular | unavoidable |" in markdown
+    assert "| sim | modular | sim_dominated |" in markdown
+    adversarial = next(line for line in markdown.splitlines() if line.startswith("| modular | adversarial |"))
+    assert adversarial.rstrip(" |").endswith("]")  # the stack's failures: 1 of 3 attacks, 33.3 %
+    assert "33.3 [" in adversarial.split("|")[-2]

@@ -4,8 +4,9 @@ The window is KITTI tracking 0000, frames 20..79 (1 s history + 5 s future). The
 one of the window's actors given a new trajectory along the SDV's logged path: 2.5 s ahead of the
 SDV until it stops at the SDV's position of frame 40, so the SDV following its plan (its logged
 future) runs into it. Scores come from the scorer's own function (core.scoring.evaluate_query),
-summary.json from the attack's own summary code and the bag from write_scenario_bag with the
-extra topics the attack writes, markers included.
+summary.json from the attack's own summary code (the controls, the finding and the fault of the
+colliding query included: the original re-run and the identity control score like the original) and
+the bag from write_scenario_bag with the extra topics the attack writes, markers included.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from advsim_ros.attack.controls import controls, finding, query_faults
 from advsim_ros.attack.summary import attack_summary
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.enums import Status
@@ -24,6 +26,7 @@ from advsim_ros.contract.plan import path_msg
 from advsim_ros.contract.protocol import ScoreRecord, perturbation_msg, score_msg
 from advsim_ros.core.curation import crop_frames
 from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
+from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.objective import load_scorer_settings
 from advsim_ros.core.scoring import evaluate_query
 from advsim_ros.core.types import ActorClass, ActorTrack, Perturbation, Plan, Scenario, replace_actors
@@ -74,9 +77,12 @@ def attack_out(kitti_scenario: Scenario, tmp_path_factory: pytest.TempPathFactor
     future = slice(DECISION + 1, window.num_frames)
     plan = Plan(window.frame_stamps_ns[future], window.ego.xy[future], window.ego.yaws[future])
     delta = (0.5, -0.25)
+    logged = (window.actor(moved[0].actor_id),)
     records = [
         QueryRecord(0, "original", (), (), _score(0, plan, window, []), (), plan),
         QueryRecord(1, "random", (moved[0].actor_id,), delta, _score(1, plan, window, moved), tuple(moved), plan),
+        QueryRecord(2, "original", (), (), _score(2, plan, window, []), (), plan),
+        QueryRecord(3, "identity", (moved[0].actor_id,), (), _score(3, plan, window, list(logged)), logged, plan),
     ]
     journal = Journal.open(out / "queries.jsonl", Fingerprint({"bag": str(source)}))
     for record in records:
@@ -91,6 +97,11 @@ def attack_out(kitti_scenario: Scenario, tmp_path_factory: pytest.TempPathFactor
         "outputs": {"journal": str(out / "queries.jsonl"), "adversarial_bag": str(out / "adversarial")},
         "perturbed_actors": [moved[0].actor_id],
     }  # fmt: skip
+    summary["controls"] = controls(records, int(window.frame_stamps_ns[DECISION]))
+    faults = query_faults(records, window, DECISION, MetricsConfig(), None)
+    for entry in summary["queries"]:
+        entry["fault"] = faults.get(entry["query_id"])
+    summary["finding"] = finding(summary, summary["controls"], None, faults.get(summary["recorded_query_id"]))
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     adversarial = Scenario(
         scenario_id=f"{window.scenario_id}/adversarial", frame_stamps_ns=window.frame_stamps_ns, ego=window.ego,

@@ -44,6 +44,8 @@ def test_the_report_renders_in_headless_chromium_without_console_errors(report: 
     assert ["bev-animation", True, 720] in sizes
     assert driver.execute_script("return document.querySelectorAll('#history svg').length") == 1
     assert "collides" in driver.find_element("id", "verdict").text
+    reading = driver.find_element("id", "finding-verdict").text  # the controls held; avoidable by braking
+    assert reading.startswith("This collision counts as the stack's failure"), reading
     driver.find_element("css selector", "button[data-toggle='queries']").click()
     assert driver.execute_script("return document.getElementById('queries').hasAttribute('hidden')") is False
     errors = [entry for entry in driver.get_log("browser") if entry["level"] in ("SEVERE", "ERROR")]

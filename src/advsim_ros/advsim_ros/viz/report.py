@@ -210,6 +210,46 @@ def _verdict(view: AttackView) -> tuple[str, bool]:
     )
 
 
+def _yes(value: Any) -> str:
+    return "-" if value is None else ("yes" if value else "no")
+
+
+def finding_rows(summary: Mapping[str, Any]) -> tuple[list[list[str]], str]:
+    """The controls and the class of the finding (attack.controls), as table rows, and the one-line conclusion."""
+    controls = summary.get("controls") or {}
+    found = summary.get("finding") or {}
+    gap = controls.get("sim_gap") or {}
+    original = controls.get("original") or {}
+    fault = found.get("fault") or {}
+    contact = fault.get("contact") or {}
+    rows = [
+        ["the found scenario reproduced when re-run", _yes(found.get("reproduced"))],
+        ["the original reproduced when re-run", _yes(None if not original else original.get("reproduced"))],
+        ["identity control: L_adv minus the original's", number(gap.get("adversarial_loss"), 4)],
+        [
+            "identity control: plan moved at 3 s / 5 s [m]",
+            f"{number(gap.get('plan_l2_3s'))} / {number(gap.get('plan_l2_5s'))}",
+        ],
+        ["gain of the finding over the original (L_adv)", number(found.get("gain"), 4)],
+        ["sim-dominated (gain within the margin of the identity control)", _yes(found.get("sim_dominated"))],
+    ]
+    if fault:
+        escape = f" (e.g. {fault['escape']})" if fault.get("escape") else ""
+        rows.append(["could an ego within its limits avoid it", f"{fault.get('class')}{escape}"])
+        speeds = f"ego {number(contact.get('ego_speed'))} m/s, actor {number(contact.get('actor_speed'))} m/s"
+        rows.append([
+            "first contact",
+            f"actor {contact.get('actor_id')} at {number(contact.get('time_s'))} s, on the ego's "
+            f"{contact.get('side')}: {str(contact.get('mover', '')).replace('_', ' ')} (towards the other: {speeds})",
+        ])  # fmt: skip
+    if not found:
+        return rows, "Nothing was found to read."
+    if found.get("counts_as_failure"):
+        return rows, "This collision counts as the stack's failure: it reproduced, the controls held, it was avoidable."
+    excluded = "; ".join(found.get("excluded") or []) or "it is not a collision"
+    return rows, f"Not counted as the stack's failure: {excluded}."
+
+
 def render_report(view: AttackView, out_dir: Path) -> str:
     """The report page as HTML text; images are read from ``out_dir`` (bev.gif, bev.png) and inlined."""
     summary = view.summary
@@ -217,6 +257,7 @@ def render_report(view: AttackView, out_dir: Path) -> str:
     stack = summary.get("stack", {})
     search = summary.get("search", {})
     verdict, failed = _verdict(view)
+    reading, conclusion = finding_rows(summary)
     gif = data_uri(out_dir / "bev.gif", "image/gif")
     png = data_uri(out_dir / "bev.png", "image/png")
     metric_rows, metric_classes = _metric_rows(summary.get("original"), summary.get("adversarial"))
@@ -271,6 +312,12 @@ def render_report(view: AttackView, out_dir: Path) -> str:
         html_table(["metric", "unit", "original", "adversarial"], metric_rows, metric_classes),
         '<p class="muted">L_adv = imitation term + collision term + comfort term (weights in params/scorer.yaml); '
         "adversarial = the recorded query (the last re-run of the best).</p>",
+        '<h2 id="finding">Reading the finding</h2>',
+        html_table(["control or question", "answer"], reading),
+        f'<p class="verdict" id="finding-verdict">{esc(conclusion)}</p>',
+        '<p class="muted">The identity control re-inserts the perturbed actors on their logged tracks through the '
+        "same re-simulation: what it changes is what the simulator alone does to the stack (docs/attack.md, "
+        '"Reading a finding").</p>',
         "<h2>Perturbed actors</h2>",
         html_table(
             [
