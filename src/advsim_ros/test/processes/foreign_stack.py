@@ -6,7 +6,8 @@ and stamp their answer with that clock, not with the sweep:
 - ``gnss``: reads the LiDAR on /points_raw and its position from sensor_msgs/NavSatFix on /fix,
   anchors a `map` frame (east-north-up) at its first fix, and publishes a *spatial* nav_msgs/Path
   (poses without times, 60 m ahead along its heading from the last two fixes) in `map` on
-  /gnss_planner/path, with best-effort QoS.
+  /gnss_planner/path, with best-effort QoS. A second argument ``headingless`` leaves the poses'
+  orientations unset (identity quaternions), as many spatial planners do.
 - ``autoware``: reads /sensing/lidar/concatenated/pointcloud and /localization/kinematic_state
   (nav_msgs/Odometry in `map`) and publishes autoware_planning_msgs/Trajectory (points with speeds,
   no times) on /planning/scenario_planning/trajectory, with what blocks its corridor as
@@ -47,6 +48,7 @@ class ForeignStack(Node):
     def __init__(self, dialect: str) -> None:
         super().__init__(f"{dialect}_planner")
         self.dialect = dialect
+        self.headingless = "headingless" in sys.argv[2:]
         self.blocked = False  # something in the corridor ahead in the latest sweep
         self.obstacle: tuple[float, float] | None = None  # its centroid in the sensor frame [m]
         self.position: tuple[float, float] | None = None  # in `map` [m]
@@ -133,7 +135,9 @@ class ForeignStack(Node):
             for pose in poses:
                 item = PoseStamped()
                 item.header.frame_id = "map"  # no per-pose times: a spatial path
-                item.pose = pose
+                item.pose.position = pose.position  # orientation left as it comes (identity) when headingless
+                if not self.headingless:
+                    item.pose.orientation = pose.orientation
                 path.poses.append(item)
             self.publisher.publish(path)
             return
