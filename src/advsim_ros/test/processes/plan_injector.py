@@ -7,45 +7,38 @@ started with (the attack's domain with or without the graph's transport profile)
 line once it publishes and runs until SIGINT.
 """
 
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
-from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
+
+from advsim_ros.stacks.example import run
 
 WORLD = "world"
 
 
-def main() -> None:
-    rclpy.init()
-    node = rclpy.create_node("plan_injector")
-    publish = node.create_publisher(Path, "/planning/trajectory", 10).publish
-    latest = Clock()
-    node.create_subscription(Clock, "/clock", lambda message: setattr(latest, "clock", message.clock), 10)
-    sent = [0]
+class PlanInjector(Node):
+    def __init__(self) -> None:
+        super().__init__("plan_injector")
+        self.plans = self.create_publisher(Path, "/planning/trajectory", 10)
+        self.latest = Clock()
+        self.create_subscription(Clock, "/clock", lambda message: setattr(self.latest, "clock", message.clock), 10)
+        self.sent = 0
+        self.create_timer(0.02, self.inject)
 
-    def inject() -> None:
+    def inject(self) -> None:
         path = Path()
-        path.header.stamp, path.header.frame_id = latest.clock, WORLD
+        path.header.stamp, path.header.frame_id = self.latest.clock, WORLD
         for step in range(1, 51):
             item = PoseStamped()
             item.header.frame_id = WORLD
             item.pose.position.x, item.pose.position.y = 100.0 + step, 100.0
             path.poses.append(item)
-        publish(path)
-        sent[0] += 1
-        if sent[0] == 1:
+        self.plans.publish(path)
+        self.sent += 1
+        if self.sent == 1:
             print("plan injector publishing", flush=True)
-
-    node.create_timer(0.02, inject)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 if __name__ == "__main__":
-    main()
+    run(PlanInjector)
