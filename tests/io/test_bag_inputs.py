@@ -4,6 +4,7 @@ clouds checked without copying their points (the attack's preflight), sweeps wit
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -99,3 +100,12 @@ def test_a_sweep_with_no_valid_point_is_named_when_asked_about(tmp_path: Path, c
     message = rf"LiDAR topic {LIDAR} at 1300000000 ns: the sweep has no valid point \({count} points, none with"
     with pytest.raises(BagError, match=message):
         check_lidar_sweeps(bag, BagConfig(), [cloud_bags.stamp(f) for f in (2, 3, 4)])
+
+
+def test_a_bag_of_a_storage_plugin_rosbags_cannot_read_is_one_line_naming_it(tmp_path: Path, cloud_bags: Any) -> None:
+    bag = cloud_bags.write(tmp_path / "bag", {0: cloud_bags.cloud_cdr(cloud_bags.points(20, 0), 0)}, num_frames=1)
+    metadata = bag / "metadata.yaml"
+    metadata.write_text(re.sub(r"storage_identifier: \w+", "storage_identifier: leveldb", metadata.read_text()))
+    with pytest.raises(BagError, match=r"storage 'leveldb' is not one this reads \(sqlite3, mcap\)") as error:
+        read_scenario_bag(bag)
+    assert "report" not in str(error.value)

@@ -20,6 +20,7 @@ from typing import Any, BinaryIO
 
 import apsw
 import numpy as np
+import yaml
 from lz4.frame import LZ4FrameDecompressor
 from rosbags.interfaces import Connection, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader, storage_mcap
@@ -125,6 +126,25 @@ storage_mcap.read_exact = _read_within
 storage_mcap.DECOMPRESSORS.update(zstd=_bounded(storage_mcap.zstd.ZstdDecompressor), lz4=_bounded(LZ4FrameDecompressor))
 
 
+STORAGES = ("sqlite3", "mcap")  # the rosbag2 storage plugins rosbags reads
+
+
+def _check_storage(path: Path) -> None:
+    """BagError naming a storage plugin rosbags cannot read (it would say "please report issue")."""
+    if not path.is_dir():
+        return
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text(errors="replace"))
+        storage = info["rosbag2_bagfile_information"]["storage_identifier"]
+    except (yaml.YAMLError, OSError, KeyError, TypeError, ValueError, RecursionError):
+        return  # rosbags reports what is wrong with the metadata itself
+    if storage not in STORAGES:
+        raise BagError(
+            f"bag {path}: storage {storage!r} is not one this reads ({', '.join(STORAGES)}); convert it with "
+            "`ros2 bag convert` to mcap or sqlite3"
+        )
+
+
 class BagReader:
     """rosbags' Reader with errors turned into BagError and types from the bag and from advsim_msgs."""
 
@@ -137,6 +157,7 @@ class BagReader:
                 f"{self.path} has no metadata.yaml: not a rosbag2 folder, or a recording that was not closed "
                 "(`ros2 bag reindex` rebuilds it)"
             )
+        _check_storage(self.path)
         try:
             self.reader = Reader(self.path)
             self.reader.open()
