@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from advsim_ros.ros.identity import RUN_MARKER, Membership, carries_marker, endpoint_pid_bits, marked_processes
-from advsim_ros.ros.launcher import start_reaper
+from advsim_ros.ros.launcher import reserve_domain_id, start_reaper
 
 MARKER = "0f1e2d3c4b5a69788796a5b4c3d2e1f0"
 
@@ -69,3 +69,12 @@ def test_the_reaper_ends_a_marked_process_whatever_session_it_put_itself_in(tmp_
         reaper.kill()
         reaper.wait()
     assert "did not die" not in (tmp_path / "reaper.log").read_text()
+
+
+def test_the_domain_an_attack_gets_is_drawn_at_random_among_the_free_ones() -> None:
+    drawn = set()
+    for _ in range(20):
+        with reserve_domain_id() as lease:  # released at once: the next draw has the same choice
+            drawn.add(lease.domain_id)
+    assert len(drawn) > 5  # the first free one each time would give a single domain
+    assert all(100 <= domain < 230 for domain in drawn)
