@@ -256,6 +256,31 @@ def test_a_stack_that_is_not_deterministic_is_reported_as_such_and_replay_check_
 
 
 @pytest.mark.slow
+def test_an_original_that_does_not_reproduce_is_reported_original_flaky_and_its_finding_not_counted(
+    kitti_window_bag: Path, tmp_path: Path, simple_stack: Callable[..., str], uninterrupted: tuple[str, dict[str, Any]]
+) -> None:
+    _, reference = uninterrupted
+    out = tmp_path / "late_start"
+    argv = attack_argv(kitti_window_bag, out, simple_stack(wrong_first_sweeps=10))  # query 0 planned from a bad speed
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
+    assert result.returncode == 0, result.stderr  # the original was scored: the attack ran, its reading says why
+    summary = json.loads((out / "summary.json").read_text())
+    controls = summary["controls"]
+    assert controls["original_flaky"] is True
+    first, *again = controls["original"]["adversarial_losses"]
+    assert again == [reference["original"]["adversarial_loss"]] * 2  # the re-runs score as an undisturbed original
+    assert first != again[0]
+    assert controls["original"]["inputs_identical"] is True  # the same bytes in: the stack differed, not the graph
+    identity = controls["identity"]
+    assert identity["score"]["status"] == "ok"
+    assert controls["sim_gap"] is not None
+    finding = summary["finding"]
+    if finding is not None and finding["collision"]:
+        assert not finding["counts_as_failure"]
+        assert any(reason.startswith("original_flaky") for reason in finding["excluded"])
+
+
+@pytest.mark.slow
 def test_a_stack_that_never_hears_the_lidar_ends_the_attack_with_what_it_listens_to(
     kitti_window_bag: Path, tmp_path: Path, simple_stack: Callable[..., str]
 ) -> None:

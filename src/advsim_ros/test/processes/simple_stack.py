@@ -4,6 +4,8 @@
 `hang_at_sweep` makes it stop answering for `hang_seconds` (stuck in its own computation).
 `flaky_probability` makes it plan from a randomly wrong speed that often (an unseeded,
 non-deterministic stack, as users' stacks can be).
+`wrong_first_sweeps` makes it plan from a wrong speed for the first that many sweeps of its life (a
+stack whose start-up is late, as one whose first inputs arrive stale: its first query differs).
 `crash_after_plans` makes every run of it exit with code 3 after that many plans (a stack that
 keeps crashing, however often it is restarted); `plans` makes its plans unusable: `none` (it
 never publishes one), `nan_poses` (NaN positions), `empty` (no poses), `frame` (in a frame of its own).
@@ -35,6 +37,7 @@ class FaultyStack(ExampleStack):
         self.marker_dir = Path(self.declare_parameter("marker_dir", "/tmp").value)
         self.flaky_probability = self.declare_parameter("flaky_probability", 0.0).value
         self.noise = random.Random()  # deliberately unseeded: the point is to be non-deterministic
+        self.wrong_first = self.declare_parameter("wrong_first_sweeps", 0).value
         self.crash_after = self.declare_parameter("crash_after_plans", -1).value
         self.plans = self.declare_parameter("plans", "normal").value
         self.published = 0
@@ -59,6 +62,8 @@ class FaultyStack(ExampleStack):
     def plan(self, cloud: PointCloud2, odometry: Odometry) -> None:
         if self.noise.random() < self.flaky_probability:
             odometry.twist.twist.linear.x *= self.noise.uniform(0.5, 1.5)
+        if self.sweeps <= self.wrong_first:
+            odometry.twist.twist.linear.x *= 0.5
         if self.plans == "none":
             return
         if self.plans == "frame":
