@@ -53,6 +53,16 @@ def test_an_endpoint_belongs_to_the_attack_only_when_its_pid_bits_name_a_marked_
     assert not membership.belongs(cyclone)
 
 
+def test_an_endpoint_of_a_process_the_launcher_started_belongs_after_the_process_is_gone(tmp_path: Path) -> None:
+    crashed = subprocess.Popen(["true"])
+    crashed.wait()  # gone from /proc, as a crashed stack whose endpoints linger in the graph until their lease ends
+    started = tmp_path / "pids"
+    started.write_text(f"{os.getpid() + 1}\n{crashed.pid}\n")
+    assert Membership(MARKER, started).belongs(_gid(crashed.pid))
+    assert not Membership(MARKER).belongs(_gid(crashed.pid))  # without the launcher's list: not provably ours
+    assert not Membership(MARKER, tmp_path / "no such file").belongs(_gid(crashed.pid))
+
+
 def test_the_reaper_ends_a_marked_process_whatever_session_it_put_itself_in(tmp_path: Path) -> None:
     daemon = subprocess.Popen(["sleep", "600"], env={**os.environ, RUN_MARKER: MARKER}, start_new_session=True)
     reaper = start_reaper(tmp_path / "reaper.log", {**os.environ, RUN_MARKER: MARKER}, marker=MARKER)

@@ -157,7 +157,7 @@ def test_queries_of_a_crashing_or_hanging_stack_fail_and_the_attack_completes(
     )
     summary = run_attack(options).summary
     statuses = {q["query_id"]: q["score"]["status"] for q in summary["queries"]}
-    assert sorted(statuses) == [0, 1, 2, 3, 4], statuses
+    assert sorted(statuses) == [0, 1, 2, 3, 4, 5], statuses  # the original, 4 searched, the identity control
     assert "stack_error" in statuses.values(), statuses
     assert "stack_timeout" in statuses.values(), statuses
     assert statuses[0] == "ok"
@@ -179,7 +179,10 @@ def test_cli_attack_on_the_reference_stack_prints_where_the_outputs_are(
     assert f"outputs: {out.resolve()}/adversarial" in attack.stdout
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stack"]["name"] == "modular_stack"
-    assert [q["score"]["status"] for q in summary["queries"]] == ["ok"] * 4
+    # the original, 2 searched, the best's re-run, then the controls: the original's re-run and the identity
+    assert [q["algorithm"] for q in summary["queries"]] == ["original", "random", "random", "rerun", "original",
+                                                             "identity"]  # fmt: skip
+    assert [q["score"]["status"] for q in summary["queries"]] == ["ok"] * 6
 
 
 @pytest.mark.slow

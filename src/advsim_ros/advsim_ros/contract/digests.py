@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from advsim_ros.contract.codec import ContractError, after_stamp
+from advsim_ros.contract import names
+from advsim_ros.contract.codec import ContractError, after_stamp, decode, encode
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.types import FloatArray
@@ -29,7 +30,10 @@ class InputDigest:
         self._digest.array(world_T_ego)
 
     def sweep(self, cloud_cdr: bytes) -> None:
-        self._digest.raw(after_stamp(cloud_cdr))
+        # as the sender serialized it: a sample received over shared memory comes padded to a multiple of 4 bytes
+        # (an RTPS DATA submessage's length), which encoding the same cloud again does not give
+        canonical = encode(decode(cloud_cdr, names.POINTCLOUD2))
+        self._digest.raw(after_stamp(canonical))
 
     def hexdigest(self) -> str:
         return self._digest.hexdigest()

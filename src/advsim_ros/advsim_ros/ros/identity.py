@@ -5,8 +5,11 @@ attack's secret marker in its environment (``ADVSIM_RUN_MARKER``; ros.launcher s
 inherit it). Fast DDS writes the id of the process that created a participant into the
 participant's GUID prefix, and so into every endpoint GID rclpy reports: vendor id 1.15
 (eProsima) in bytes 0-1, the pid's low 16 bits, little-endian, in bytes 4-5. An endpoint belongs
-to the attack when a live process with those pid bits carries the marker; anything else that
-publishes on the stack's topics is foreign, and the query it overlaps cannot be trusted.
+to the attack when a live process with those pid bits carries the marker, or when they are the
+bits of a process the graph's launcher started (``ADVSIM_RUN_PIDS`` names the file it lists them
+in: a crashed stack's endpoints stay in the graph until their lease expires, after its /proc entry
+is gone); anything else that publishes on the stack's topics is foreign, and the query it overlaps
+cannot be trusted.
 
 The graph's DDS runs over shared memory only (ros/fastdds_graph.xml), so only a process on this
 machine, on the attack's randomly drawn domain and with the graph's transport profile, can be
@@ -22,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 RUN_MARKER = "ADVSIM_RUN_MARKER"
+RUN_PIDS = "ADVSIM_RUN_PIDS"  # the file the launcher lists the pids of the processes it started in
 _EPROSIMA = (1, 15)  # Fast DDS's RTPS vendor id
 
 
@@ -67,19 +71,30 @@ class Membership:
     a GID not seen before costs one look at the few processes whose pid has its 16 bits.
     """
 
-    def __init__(self, marker: str) -> None:
+    def __init__(self, marker: str, started: Path | None = None) -> None:
         self.marker = marker
+        self.started = started  # the launcher's list of the pids it started, dead ones included
         self._verdicts: dict[bytes, bool] = {}
+
+    def _started_bits(self) -> set[int]:
+        try:
+            lines = self.started.read_text().split() if self.started is not None else []
+        except OSError:
+            return set()
+        return {int(line) & 0xFFFF for line in lines if line.isdigit()}
 
     def belongs(self, gid: Sequence[int]) -> bool:
         key = bytes(gid)
         verdict = self._verdicts.get(key)
         if verdict is None:
             bits = endpoint_pid_bits(gid)
-            verdict = bits is not None and any(
-                int(entry) & 0xFFFF == bits and carries_marker(int(entry), self.marker)
-                for entry in os.listdir("/proc")
-                if entry.isdigit()
+            verdict = bits is not None and (
+                any(
+                    int(entry) & 0xFFFF == bits and carries_marker(int(entry), self.marker)
+                    for entry in os.listdir("/proc")
+                    if entry.isdigit()
+                )
+                or bits in self._started_bits()
             )
             self._verdicts[key] = verdict
         return verdict
@@ -97,5 +112,5 @@ class Membership:
 
 def run_membership() -> Membership | None:
     """The membership of the attack this process belongs to (None when it was not started by an attack)."""
-    marker = os.environ.get(RUN_MARKER)
-    return Membership(marker) if marker else None
+    marker, started = os.environ.get(RUN_MARKER), os.environ.get(RUN_PIDS)
+    return Membership(marker, Path(started) if started else None) if marker else None

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from advsim_ros.ros.identity import RUN_MARKER
+from advsim_ros.ros.identity import RUN_MARKER, RUN_PIDS
 
 # Fast DDS accepts domain ids 0..232; the low ones are left to the user's own graphs.
 _DOMAIN_IDS = range(100, 230)
@@ -203,12 +203,14 @@ class Launcher:
 
     def __init__(self, env: Mapping[str, str], log_dir: Path, lease: DomainLease) -> None:
         self.marker = secrets.token_hex(16)
-        self._env = {**env, RUN_MARKER: self.marker}
+        self._started = log_dir / "pids"  # every pid this launcher started (ros.identity: a crashed stack's too)
+        self._env = {**env, RUN_MARKER: self.marker, RUN_PIDS: str(self._started)}
         self._log_dir = log_dir
         self._lease = lease
         self._running: list[_Running] = []
         self._stopped_resources: dict[str, dict[str, float]] = {}
         log_dir.mkdir(parents=True, exist_ok=True)
+        self._started.write_text("")  # this graph's processes only (a resumed attack's folder has the last run's)
         # The reaper first: from now on nothing this launcher starts can outlive the orchestrator.
         self._reaper = start_reaper(log_dir / "reaper.log", self._env, (lease.lock_fd,), self.marker)
         assert self._reaper.stdin is not None
@@ -231,6 +233,8 @@ class Launcher:
             log_file.close()
             raise LaunchError(f"cannot start {spec.name} ({' '.join(spec.command)}): {error}") from error
         self._tell_reaper.write(f"{process.pid}\n".encode())  # its process group id is its pid (setsid)
+        with self._started.open("a") as started:
+            started.write(f"{process.pid}\n")
         self._tell_reaper.flush()
         self._running.append(_Running(spec, process, log_path, log_file))
         return process
