@@ -147,7 +147,7 @@ def test_a_campaign_killed_mid_way_and_resumed_reports_what_an_uninterrupted_one
     for key in rows:  # no query computed twice, resumed or not
         lines = (killed / "attacks" / key / "queries.jsonl").read_text().splitlines()[1:]
         ids = [json.loads(line)["query_id"] for line in lines if "query_id" in line]
-        assert len(ids) == len(set(ids)) == 5  # the original and 4 searched queries
+        assert len(ids) == len(set(ids)) == 6  # the original, 4 searched queries and the identity control
     report = (killed / "report.md").read_text()
     assert "Table 1" in report
     assert "| reference | adversarial | 2 |" in report
