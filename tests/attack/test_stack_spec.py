@@ -12,7 +12,7 @@ from advsim_ros.adapters.profile import load_profile
 from advsim_ros.attack.checks import check_stack_command
 from advsim_ros.attack.options import StackSpec
 from advsim_ros.campaign.config import stack_spec as campaign_stack_spec
-from advsim_ros.cli import build_parser, main
+from advsim_ros.cli import build_parser
 from advsim_ros.cli.attack import stack_spec
 from advsim_ros.core.types import ScenarioError
 
@@ -65,14 +65,12 @@ def test_stack_repeated_is_one_process_each_the_first_the_main_one_and_remaps_ap
     assert spec.command == ("python3", "detector.py", "--ros-args")
 
 
-def test_a_reference_stack_is_only_the_first_stack_and_a_profile_takes_no_stack(tmp_path: Path) -> None:
+def test_a_reference_stack_is_only_the_first_stack_and_the_default_is_the_reference() -> None:
     with pytest.raises(ScenarioError, match="only the first --stack may name a reference stack"):
         StackSpec.parse_all(["python3 a.py", "reference"])
-    profile = tmp_path / "p.yaml"
-    profile.write_text("processes: [{command: a}]\n")
-    assert main(["attack", "bag", "-o", str(tmp_path / "o"), "--stack", "reference", "--stack-profile",
-                 str(profile)]) == 1  # fmt: skip
-    assert not (tmp_path / "o").exists()
+    assert stack_spec(build_parser().parse_args(["attack", "bag", "-o", "out"])).name == "modular_stack"
+    args = build_parser().parse_args(["doctor", "bag", "--stack", "learned", "--stack", "python3 helper.py"])
+    assert [process.name for process in stack_spec(args).processes()] == ["learned_stack", "learned_stack2"]
 
 
 def test_campaign_stacks_follow_the_same_sim_time_rule(tmp_path: Path) -> None:

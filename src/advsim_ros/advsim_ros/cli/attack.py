@@ -81,11 +81,20 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     demo.set_defaults(run=_run_demo)
 
 
+class _StackCommands(argparse.Action):
+    """--stack, repeatable: the first one given replaces the default, each further one adds a process."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        given = getattr(namespace, self.dest)
+        setattr(namespace, self.dest, [*([] if given is self.default else given), values])
+
+
 def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--stack",
-        action="append",
-        default=None,
+        action=_StackCommands,
+        default=["reference"],
         help='"reference" (modular, the default), "learned", or a command line that starts your stack; repeat it '
         "for a stack of several processes (the first is the main one; --remap applies to all)",
     )
@@ -144,7 +153,7 @@ def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
 
 def stack_spec(args: argparse.Namespace) -> StackSpec:
     if args.stack_profile is not None:
-        if args.stack is not None or args.remap or args.remap_file is not None:
+        if args.stack != ["reference"] or args.remap or args.remap_file is not None:
             raise CommandError("--stack-profile says how to start and connect the stack: leave out --stack and --remap")
         spec = StackSpec.from_profile(load_profile(args.stack_profile))
         return dataclasses.replace(spec, restart=spec.restart and not args.no_restart)
@@ -164,7 +173,7 @@ def stack_spec(args: argparse.Namespace) -> StackSpec:
         if not separator or not source or not target:
             raise CommandError(f"--remap {item!r}: expected FROM:=TO")
         remappings[source] = target
-    spec = StackSpec.parse_all(args.stack or ["reference"], remappings)
+    spec = StackSpec.parse_all(args.stack, remappings)
     return dataclasses.replace(spec, restart=not args.no_restart, remap_mode=args.remap_mode)
 
 
