@@ -226,7 +226,7 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     if profile is not None:
         expected[topics.ODOM.name] = POSE_MSGTYPES[profile.inputs.pose.type]
         expected[topics.PLAN.name] = PLAN_MSGTYPES[profile.outputs.plan.type]
-    best_effort = frozenset()
+    best_effort: frozenset[str] = frozenset()
     if profile is not None:
         outputs = profile.outputs
         answers = ((topics.PLAN, outputs.plan), (topics.DETECTIONS, outputs.detections),

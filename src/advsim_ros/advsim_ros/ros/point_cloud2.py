@@ -20,6 +20,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 from numpy.lib import recfunctions
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
@@ -50,7 +51,7 @@ def dtype_from_fields(fields: Iterable[PointField], point_step: int | None = Non
     return pointfields_to_dtype(fields, step, is_bigendian=False)
 
 
-def fields_from_dtype(dtype: np.dtype | str | Sequence[Any]) -> list[PointField]:
+def fields_from_dtype(dtype: npt.DTypeLike) -> list[PointField]:
     """The PointFields that describe a structured dtype (offsets kept)."""
     specs, _ = dtype_to_cloud_fields(np.dtype(dtype))
     return [PointField(name=s.name, offset=s.offset, datatype=s.datatype, count=s.count) for s in specs]
@@ -71,7 +72,8 @@ def _indices(uvs: Iterable[Any], height: int, width: int) -> np.ndarray:
 def _take(points: np.ndarray, index: np.ndarray) -> np.ndarray:
     """points[index] with whole records copied, padding included (structured indexing leaves it undefined)."""
     records = np.ascontiguousarray(points.view(np.uint8).reshape(len(points), points.dtype.itemsize))
-    return records[index].reshape(-1).view(points.dtype)
+    taken: np.ndarray = records[index].reshape(-1).view(points.dtype)
+    return taken
 
 
 def read_points(
@@ -117,7 +119,7 @@ def read_points_numpy(
 ) -> np.ndarray:
     """read_points as a plain array, one column per field value; every read field must have the same datatype."""
     points = read_points(cloud, field_names, skip_nans, uvs, reshape_organized_cloud)
-    fields = points.dtype.fields or {}
+    fields: dict[str, Any] = dict(points.dtype.fields or {})
     bases = {fields[name][0].base.newbyteorder("=") for name in points.dtype.names or ()}
     if len(bases) != 1:
         raise ValueError(
