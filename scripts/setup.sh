@@ -3,7 +3,8 @@
 #   1. Debian packages the Python wheels need (libusb-1.0-0 for open3d),
 #   2. .venv with the pinned requirements (real ROS 2 Jazzy from the wheels, torch CPU, ...),
 #   3. the interface packages of msg_defs/ built with rosidl and installed into the venv,
-#   4. advsim_ros installed editable (console scripts for every node and the `advsim` command).
+#   4. advsim_ros installed editable (console scripts for every node and the `advsim` command),
+#   5. sensor_msgs_py's point-cloud helpers where the venv has none (stacks import them).
 # Each step is skipped when the inputs it depends on have not changed since it last ran (a hash
 # stamp in .venv/.advsim-stamps), so a second run takes about a second.
 set -euo pipefail
@@ -105,5 +106,15 @@ if ! stamp_ok package "$pkg_hash"; then
   log "installing advsim_ros (editable) into .venv"
   pip_install --no-deps --no-build-isolation -e src/advsim_ros
   stamp_set package "$pkg_hash"
+fi
+# 5. sensor_msgs_py (point-cloud helpers that stacks import; the ROS 2 wheels lack it): advsim's own
+#    (src/sensor_msgs_py_compat), only where none imports, so a full ROS install keeps its own.
+#    Installed again when it changed, if it is ours that is there (the stamp says so).
+compat_hash=$(hash_of src/sensor_msgs_py_compat/pyproject.toml src/sensor_msgs_py_compat/sensor_msgs_py/*.py)
+if ! stamp_ok sensor_msgs_py "$compat_hash" \
+   && { [ -f "$STAMPS/sensor_msgs_py" ] || ! "$VENV/bin/python" -c 'import sensor_msgs_py' 2>/dev/null; }; then
+  log "installing sensor_msgs_py (point_cloud2 helpers, advsim's own) into .venv"
+  pip_install --no-deps --no-build-isolation src/sensor_msgs_py_compat
+  stamp_set sensor_msgs_py "$compat_hash"
 fi
 log "ready: . .venv/bin/activate  (advsim --help)"

@@ -63,6 +63,20 @@ def test_commands_expand_environment_variables_and_advsims_interpreter(tmp_path:
     assert "$" not in argv[3]
 
 
+def test_cwd_is_relative_to_the_profile_and_env_expands_like_the_command(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "stack" / "bin").mkdir(parents=True)
+    monkeypatch.setenv("MY_LIBS", "/opt/libs")
+    text = "processes: [{command: ./run, cwd: stack/bin, env: {PYTHONPATH: '${MY_LIBS}:x', MODE: fast}}]\n"
+    profile = load_profile(_write(tmp_path, text))
+    process = profile.processes[0]
+    assert profile.cwd_path(process) == (tmp_path / "stack" / "bin").resolve()
+    assert process.environment == {"PYTHONPATH": "/opt/libs:x", "MODE": "fast"}
+    assert process.env["PYTHONPATH"] == "${MY_LIBS}:x"  # the file's text; expanded when the process starts
+    assert profile.cwd_path(load_profile(_write(tmp_path, "processes: [{command: a}]\n")).processes[0]) is None
+
+
 def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
     profile = load_profile(PROFILES / "autoware.yaml")
     copy = tmp_path / "copy.json"
@@ -105,6 +119,10 @@ def test_the_profile_round_trips_through_json(tmp_path: Path) -> None:
         ("processes: [{command: a}]\noutputs: {plan: {headings: tangent}}\n", "name yours"),  # converted
         ("- a\n", "expected a mapping"),
         ("processes: [{command: 'a}]\n", "not valid YAML"),
+        ("processes: [{command: a, cwd: nowhere}]\n", "nowhere of stack is not a folder"),
+        ("processes: [{command: a, env: {THREADS: 4}}]\n", "env.THREADS: expected a string, got 4"),
+        ("processes: [{command: a, env: {'A B': x}}]\n", "'A B' is not an environment variable's name"),
+        ("processes: [{command: a, env: [A=1]}]\n", "env: expected a mapping"),
     ],
 )
 def test_a_bad_profile_is_refused_with_one_line_naming_the_problem(tmp_path: Path, text: str, message: str) -> None:

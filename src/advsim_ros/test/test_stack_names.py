@@ -75,8 +75,7 @@ def test_advsim_doctor_says_what_the_stack_uses_and_the_remaps_that_connect_it(
     environment = {**os.environ, "PYTHON": sys.executable}
 
     def doctor(out: str, *extra: str) -> subprocess.CompletedProcess[str]:
-        command = [sys.executable, "-m", "advsim_ros.cli", "doctor", str(synthetic_bag), "--stack", stack,
-                   "-o", str(tmp_path / out), *extra]  # fmt: skip
+        command = _doctor_command(synthetic_bag, tmp_path, out, "--stack", stack, *extra)
         return subprocess.run(command, capture_output=True, text=True, timeout=600, check=False, env=environment)
 
     unconnected = doctor("plain", "--connect-timeout", "20")
@@ -87,6 +86,12 @@ def test_advsim_doctor_says_what_the_stack_uses_and_the_remaps_that_connect_it(
     for remap in REMAPS[1::2]:
         assert f"--remap {remap}" in table  # every remap it needs, and only from its own topics
     assert "verdict: NOT ready" in table
+    # the profile it suggests attaches the stack as it stands: the same script, its topics bridged
+    suggested = _doctor_command(synthetic_bag, tmp_path, "suggested", "--stack-profile",
+                                str(tmp_path / "plain" / "suggested_profile.yaml"))  # fmt: skip
+    profiled = subprocess.run(suggested, capture_output=True, text=True, timeout=600, check=False, env=environment)
+    assert profiled.returncode == 0, profiled.stdout + profiled.stderr + _log_tails(tmp_path / "suggested")
+    assert "verdict: ready to attack" in profiled.stdout
 
     connected = doctor("remapped", *REMAPS)
     assert connected.returncode == 0, connected.stdout + connected.stderr + _log_tails(tmp_path / "remapped")
@@ -94,6 +99,10 @@ def test_advsim_doctor_says_what_the_stack_uses_and_the_remaps_that_connect_it(
                      connected.stdout, re.MULTILINE)  # fmt: skip
     assert "plans: 10 of 10 sweeps answered" in connected.stdout
     assert "Found remap rule" not in connected.stderr  # the advsim command line is not rcl's
+
+
+def _doctor_command(bag: Path, tmp_path: Path, out: str, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "advsim_ros.cli", "doctor", str(bag), "-o", str(tmp_path / out), *extra]
 
 
 def _log_tails(out: Path, lines: int = 15) -> str:

@@ -150,7 +150,7 @@ def test_advsim_doctor_proposes_a_profile_for_a_foreign_stack_and_passes_it_with
 ) -> None:
     bare = _advsim(
         "doctor", str(synthetic_bag), "--stack", f"{sys.executable} {FOREIGN_STACK} gnss", "-o", str(tmp_path / "bare"),
-        timeout=600,
+        "--connect-timeout", "20", timeout=600,
     )  # fmt: skip
     assert bare.returncode == 1, bare.stderr[-2000:]
     assert "verdict: NOT ready" in bare.stdout
@@ -159,6 +159,7 @@ def test_advsim_doctor_proposes_a_profile_for_a_foreign_stack_and_passes_it_with
     assert suggested["inputs"]["pose"]["type"] == "navsatfix"
     assert suggested["outputs"]["plan"]["topic"] == "/gnss_planner/path"
     assert suggested["outputs"]["plan"]["reliability"] == "best_effort"
+    assert suggested["inputs"]["pose"]["datum"] == {"latitude": 0.0, "longitude": 0.0, "altitude": 0.0}  # yours here
 
     profiled = _advsim(
         "doctor", str(synthetic_bag), "--stack-profile", str(_gnss_profile(tmp_path)), "-o", str(tmp_path / "ok"),
@@ -170,6 +171,11 @@ def test_advsim_doctor_proposes_a_profile_for_a_foreign_stack_and_passes_it_with
     rows = {line.split()[0]: line for line in profiled.stdout.splitlines() if line.startswith("/")}
     assert rows["/ego/odom"].split()[-1] == "ok"
     assert rows["/planning/trajectory"].split()[-1] == "ok"
+    # what it suggests from a working profile keeps what no graph shows (the datum, the plan's frame): it works too
+    again = _advsim("doctor", str(synthetic_bag), "--stack-profile", str(tmp_path / "ok" / "suggested_profile.yaml"),
+                    "-o", str(tmp_path / "again"), timeout=600)  # fmt: skip
+    assert again.returncode == 0, again.stdout[-3000:]
+    assert "verdict: ready to attack" in again.stdout
 
 
 def test_a_misconfigured_profile_is_one_line_and_starts_nothing(synthetic_bag: Path, tmp_path: Path) -> None:

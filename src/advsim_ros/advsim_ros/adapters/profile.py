@@ -10,7 +10,8 @@ as it is. Loading validates everything and refuses a bad profile with one line n
     name: my_stack
     use_sim_time: true
     processes:
-      - {name: planner, command: "python3 planner.py", params_files: [planner.yaml], parameters: {rate: 10.0}}
+      - {name: planner, command: "python3 planner.py", params_files: [planner.yaml], parameters: {rate: 10.0},
+         cwd: planner, env: {PYTHONPATH: "${HOME}/libs"}}
     timing: {mode: timer, clock_step: 0.01, real_time_factor: 1.0, decision_delay: 0.1}
     inputs:
       lidar: {topic: /points_raw, frame_id: velodyne}
@@ -96,6 +97,8 @@ class ProcessProfile:
     params_files: tuple[str, ...] = ()  # parameter files, relative to the profile's folder
     parameters: dict[str, Any] = field(default_factory=dict)  # -p NAME:=VALUE
     remappings: dict[str, str] = field(default_factory=dict)  # -r FROM:=TO, the stack's own rules
+    cwd: str = ""  # working folder, relative to the profile's folder ("": where advsim runs)
+    env: dict[str, str] = field(default_factory=dict)  # extra environment variables ($VAR expanded)
 
     def __post_init__(self) -> None:
         try:
@@ -111,12 +114,24 @@ class ProcessProfile:
                 raise ScenarioError(f"parameters.{key}: expected a number, a string or true/false, got {value!r}")
         if (self.params_files or self.parameters or self.remappings) and not self.ros_args:
             raise ScenarioError("params_files, parameters and remappings need ros_args: true")
+        for variable in self.env:
+            if not variable or "=" in variable or "\0" in variable or any(c.isspace() for c in variable):
+                raise ScenarioError(f"env: {variable!r} is not an environment variable's name")
 
     @property
     def argv(self) -> tuple[str, ...]:
         """The command split like a shell would, $VAR and ${VAR} expanded ($ADVSIM_PYTHON: advsim's interpreter)."""
-        environment = {"ADVSIM_PYTHON": sys.executable, **os.environ}
-        return tuple(string.Template(token).safe_substitute(environment) for token in shlex.split(self.command))
+        return tuple(_expand(token) for token in shlex.split(self.command))
+
+    @property
+    def environment(self) -> dict[str, str]:
+        """``env`` with $VAR and ${VAR} in its values expanded as in the command."""
+        return {variable: _expand(value) for variable, value in self.env.items()}
+
+
+def _expand(text: str) -> str:
+    """$VAR and ${VAR} from advsim's environment ($ADVSIM_PYTHON: its interpreter); unknown ones stay as written."""
+    return string.Template(text).safe_substitute({"ADVSIM_PYTHON": sys.executable, **os.environ})
 
 
 @dataclass(frozen=True)
@@ -312,6 +327,10 @@ class StackProfile:
     def params_paths(self, process: ProcessProfile) -> tuple[Path, ...]:
         return tuple((Path(self.folder) / item).resolve() for item in process.params_files)
 
+    def cwd_path(self, process: ProcessProfile) -> Path | None:
+        """The process's working folder (relative ones start at the profile's folder); None: advsim's own."""
+        return (Path(self.folder) / _expand(process.cwd)).resolve() if process.cwd else None
+
     def renamed(self) -> dict[str, str]:
         """Contract topic -> the stack's name, for every contract topic the stack calls otherwise."""
         names = {
@@ -373,4 +392,7 @@ def load_profile(path: Path) -> StackProfile:
         for params_file in profile.params_paths(process):
             if not params_file.is_file():
                 raise ProfileError(f"stack profile {path}: params file {params_file} of {process.name} does not exist")
+        cwd = profile.cwd_path(process)
+        if cwd is not None and not cwd.is_dir():
+            raise ProfileError(f"stack profile {path}: cwd {cwd} of {process.name} is not a folder")
     return profile

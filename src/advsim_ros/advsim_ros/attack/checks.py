@@ -49,13 +49,16 @@ def _fields(config_type: type[Any]) -> set[str]:
 
 
 def check_stack_command(stack: StackSpec) -> None:
-    """ScenarioError unless the stack's executable exists (a path) or is on PATH."""
-    executable = stack.command[0]
-    if os.sep in executable:
-        if not (Path(executable).is_file() and os.access(executable, os.X_OK)):
-            raise ScenarioError(f"--stack: {executable} is not an executable file")
-    elif shutil.which(executable) is None:
-        raise ScenarioError(f"--stack: command {executable!r} not found on PATH")
+    """ScenarioError unless every process's executable exists (a path, from its working folder) or is on PATH."""
+    for process in stack.processes():
+        where = "--stack" if stack.profile is None else f"stack profile: process {process.name}"
+        executable = process.command[0]
+        if os.sep in executable:
+            path = Path(process.cwd or ".") / executable  # the launcher starts it in its cwd
+            if not (path.is_file() and os.access(path, os.X_OK)):
+                raise ScenarioError(f"{where}: {executable} is not an executable file")
+        elif shutil.which(executable, path=process.env.get("PATH")) is None:  # a profile's env may set PATH
+            raise ScenarioError(f"{where}: command {executable!r} not found on PATH")
 
 
 def choose_window(scenario: Scenario, params_dir: Path) -> int:

@@ -22,17 +22,16 @@ from typing import Any
 import yaml
 
 from advsim_ros.adapters.messages import PLAN_MSGTYPES, POSE_MSGTYPES
-from advsim_ros.attack.follow import STACK_GRAPH_FILE
+from advsim_ros.attack.follow import STACK_GRAPH_FILE, stack_log_tails
 from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.run import run_attack
+from advsim_ros.attack.suggestion import ADAPTED_TYPES, suggested_profile
 from advsim_ros.contract import topics
 from advsim_ros.contract.qos import Durability, Reliability
 from advsim_ros.contract.topics import TopicSpec
 
 REQUIRED = (topics.LIDAR, topics.PLAN)  # without these nothing can be attacked
 SUGGESTED_PROFILE = "suggested_profile.yaml"
-# Types an adapter converts (profile key -> type), by contract topic
-ADAPTED_TYPES = {topics.ODOM.name: POSE_MSGTYPES, topics.PLAN.name: PLAN_MSGTYPES}
 
 
 @dataclass(frozen=True)
@@ -61,6 +60,8 @@ class DoctorReport:
     timer: bool = False  # the profile says the stack plans on its own timer (only the decision plan is awaited)
     profile: dict[str, Any] | None = None  # a suggested stack profile (written to OUTDIR/suggested_profile.yaml)
     plan_problem: str = ""  # why the decision plan could not be scored ("" when it was)
+    notes: tuple[str, ...] = ()  # what the suggested profile chose, or leaves for the user to fill in
+    log_tails: tuple[str, ...] = ()  # no plan came: the last lines of each stack process's log
 
     @property
     def ok(self) -> bool:
@@ -102,7 +103,9 @@ class DoctorReport:
         if self.profile is not None and not self.ok:
             lines.append(f"a stack profile that would connect it ({self.out_dir / SUGGESTED_PROFILE}):")
             lines.extend("  " + line for line in yaml.safe_dump(self.profile, sort_keys=False).splitlines())
+        lines.extend(f"  note: {note}" for note in self.notes)
         lines.append(f"verdict: {'ready to attack' if self.ok else 'NOT ready'} (details in {self.out_dir})")
+        lines.extend(self.log_tails)
         return "\n".join(lines)
 
 
@@ -182,49 +185,6 @@ def suggestions(nodes: list[dict[str, Any]], rows: list[TopicRow]) -> list[str]:
     return found
 
 
-def _types_for(spec: TopicSpec) -> set[str]:
-    """The types a stack's endpoint for this contract topic may have (the contract's, or one an adapter converts)."""
-    return {spec.msgtype, *ADAPTED_TYPES.get(spec.name, {}).values()}
-
-
-def suggested_profile(nodes: list[dict[str, Any]], command: tuple[str, ...], timer: bool) -> dict[str, Any]:
-    """A stack profile from what the stack was seen to read and publish (every contract topic it has one
-    candidate for, of the contract's type or one an adapter converts)."""
-    found: dict[str, tuple[str, str]] = {}
-    for spec in topics.STACK_TOPICS:
-        side = "subscribes" if spec in topics.STACK_INPUTS else "publishes"
-        candidates = sorted(
-            {(e["topic"], e["type"]) for node in nodes for e in node[side] if e["type"] in _types_for(spec)}
-        )
-        if len(candidates) == 1:
-            found[spec.name] = candidates[0]
-    inputs: dict[str, Any] = {}
-    outputs: dict[str, Any] = {}
-    if topics.LIDAR.name in found:
-        inputs["lidar"] = {"topic": found[topics.LIDAR.name][0]}
-    if topics.ODOM.name in found:
-        topic, msgtype = found[topics.ODOM.name]
-        kind = next(key for key, value in POSE_MSGTYPES.items() if value == msgtype)
-        inputs["pose"] = {"topic": topic, "type": kind}
-        if kind == "navsatfix":
-            inputs["pose"]["datum"] = {"latitude": 0.0, "longitude": 0.0, "altitude": 0.0}  # put yours here
-    if topics.PLAN.name in found:
-        topic, msgtype = found[topics.PLAN.name]
-        kind = next(key for key, value in PLAN_MSGTYPES.items() if value == msgtype)
-        outputs["plan"] = {"topic": topic, "type": kind}
-        offered = [e["qos"] for node in nodes for e in node["publishes"] if e["topic"] == topic and e["qos"]]
-        if any(qos["reliability"] == "best_effort" for qos in offered):
-            outputs["plan"]["reliability"] = "best_effort"
-    profile: dict[str, Any] = {"profile": 1, "name": "my_stack", "processes": [{"command": " ".join(command)}]}
-    if timer:
-        profile["timing"] = {"mode": "timer"}
-    if inputs:
-        profile["inputs"] = inputs
-    if outputs:
-        profile["outputs"] = outputs
-    return profile
-
-
 def _stack_ms(trace_dir: Path) -> float | None:
     from advsim_ros.ros.trace import read_trace
 
@@ -266,7 +226,7 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     if profile is not None:
         expected[topics.ODOM.name] = POSE_MSGTYPES[profile.inputs.pose.type]
         expected[topics.PLAN.name] = PLAN_MSGTYPES[profile.outputs.plan.type]
-    best_effort = frozenset()
+    best_effort: frozenset[str] = frozenset()
     if profile is not None:
         outputs = profile.outputs
         answers = ((topics.PLAN, outputs.plan), (topics.DETECTIONS, outputs.detections),
@@ -279,7 +239,7 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     # a plan came back but could not be scored (NaN, empty, stamps, frame): the scorer's reason
     plan_problem = str(score.get("message") or score.get("status")) if plans and score.get("status") != "ok" else ""
     seen_timer = timer or (0 < plans < sweeps)  # answers some sweeps, not each: planning on a timer
-    suggestion = suggested_profile(nodes, options.stack.command, seen_timer)
+    suggestion, notes = suggested_profile(nodes, options.stack, seen_timer)
     if nodes:
         from advsim_ros.core.atomic import write_text_atomically
 
@@ -287,12 +247,15 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     return DoctorReport(
         timer=timer,
         profile=suggestion if nodes else None,
+        notes=tuple(notes) if nodes else (),
+        # why no plan came is often only in the stack's own output (a file it did not find, a traceback)
+        log_tails=tuple(stack_log_tails(out_dir, options.stack)) if plans == 0 else (),
         nodes=nodes,
         rows=rows,
         suggestions=suggestions(nodes, rows),
         error=error,
-        sweeps_delivered=int(score.get("sweeps_delivered") or 0),
-        plans_received=int(score.get("plans_received") or 0),
+        sweeps_delivered=sweeps,
+        plans_received=plans,
         stack_ms_median=_stack_ms(trace_dir) if trace_dir.is_dir() else None,
         out_dir=out_dir,
         plan_problem=plan_problem,

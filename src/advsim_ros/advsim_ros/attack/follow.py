@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from advsim_ros.attack.checks import Preflight
-from advsim_ros.attack.options import AttackError, AttackOptions
+from advsim_ros.attack.options import AttackError, AttackOptions, StackSpec
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.journal import Journal
 from advsim_ros.ros.launcher import Launcher, NodeSpec
@@ -34,6 +34,17 @@ def _log_tail(path: Path, lines: int = 30) -> str:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
     except OSError:
         return "(no log)"
+
+
+def stack_log_tails(out_dir: Path, stack: StackSpec, lines: int = 10) -> list[str]:
+    """The last lines of each stack process's log in OUTDIR/run/logs, under a line naming the log."""
+    shown = []
+    for process in stack.processes():
+        log = out_dir / "run" / "logs" / f"{process.name}.log"
+        tail = log.read_text(errors="replace").splitlines()[-lines:] if log.exists() else []
+        shown.append(f"the last lines of the stack's log {log}:" if tail else f"the stack's log {log} is empty")
+        shown.extend(f"  {line}" for line in tail)
+    return shown
 
 
 @dataclass(frozen=True)

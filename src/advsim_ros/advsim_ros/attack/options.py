@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import shlex
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,8 +46,9 @@ class StackSpec:
     params_files: tuple[Path, ...] = ()
     restart: bool = True  # start it again when it exits during the attack
     rename_node: bool = False  # reference stacks are single nodes; users' commands keep their names
-    sim_time: bool = True  # append `-p use_sim_time:=true` (off for commands that take no --ros-args)
+    sim_time: bool = True  # append `-p use_sim_time:=true` (commands: only those whose argv has --ros-args)
     profile: StackProfile | None = None  # --stack-profile: its processes and adapters (then no remappings)
+    also: tuple[tuple[str, ...], ...] = ()  # more processes of the stack (--stack repeated), beside the main one
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.remappings) - set(STACK_TOPIC_NAMES))
@@ -101,18 +102,27 @@ class StackSpec:
 
     def processes(self) -> tuple[NodeSpec, ...]:
         """The stack's processes as the launcher starts them (the first one is the stack's main process)."""
-        if self.profile is None:
-            return (
-                NodeSpec(
-                    self.name,
-                    self.command,
-                    remappings=self.rename_rules(),
-                    params_files=self.params_files,
-                    parameters={"use_sim_time": True} if self.sim_time else {},
-                    rename_node=self.rename_node,
-                ),
+        if self.profile is not None:
+            return tuple(_process_spec(self.profile, process) for process in self.profile.processes)
+        main = NodeSpec(
+            self.name,
+            self.command,
+            remappings=self.rename_rules(),
+            params_files=self.params_files,
+            parameters={"use_sim_time": True} if self.sim_time else {},
+            rename_node=self.rename_node,
+        )
+        others = (
+            NodeSpec(
+                f"{self.name}{number}",
+                command,
+                remappings=self.rename_rules(),
+                parameters={"use_sim_time": True} if takes_sim_time(command) else {},
+                rename_node=False,
             )
-        return tuple(_process_spec(self.profile, process) for process in self.profile.processes)
+            for number, command in enumerate(self.also, start=2)
+        )
+        return (main, *others)
 
     @staticmethod
     def from_profile(profile: StackProfile) -> StackSpec:
@@ -155,31 +165,61 @@ class StackSpec:
         elif text == "learned":
             spec = StackSpec.learned(params_dir)
         else:
-            try:
-                command = tuple(shlex.split(text))
-            except ValueError as error:
-                raise ScenarioError(f"--stack {text!r}: {error}") from None
-            if not command:
-                raise ScenarioError("--stack: empty command")
-            # a user's command line gets --ros-args only for remappings (ros2 launch takes none)
-            spec = StackSpec("stack", command, sim_time=False)
+            command = _command(text)
+            # a user's command gets --ros-args of ours only for remappings (ros2 launch takes none), and sim time
+            # only when its own argv hands --ros-args on to its node
+            spec = StackSpec("stack", command, sim_time=takes_sim_time(command))
         return dataclasses.replace(spec, remappings=dict(remappings or {}))
+
+    @staticmethod
+    def parse_all(texts: Sequence[str], remappings: Mapping[str, str] | None = None) -> StackSpec:
+        """--stack given once or more: the first the main process, each further one a command of the same stack."""
+        if not texts:
+            raise ScenarioError("--stack: no command")
+        for text in texts[1:]:
+            if text in ("reference", "modular", "learned"):
+                raise ScenarioError(f"--stack {text}: only the first --stack may name a reference stack")
+        spec = StackSpec.parse(texts[0], remappings)
+        return dataclasses.replace(spec, also=tuple(_command(text) for text in texts[1:]))
+
+
+def _command(text: str) -> tuple[str, ...]:
+    try:
+        command = tuple(shlex.split(text))
+    except ValueError as error:
+        raise ScenarioError(f"--stack {text!r}: {error}") from None
+    if not command:
+        raise ScenarioError("--stack: empty command")
+    return command
+
+
+def sets_sim_time(argv: Sequence[str]) -> bool:
+    """Whether a command line sets use_sim_time itself (-p use_sim_time:=..., or a launch argument)."""
+    return any(token.startswith("use_sim_time:=") for token in argv)
+
+
+def takes_sim_time(argv: Sequence[str]) -> bool:
+    """Whether -p use_sim_time:=true is appended: the argv hands --ros-args on and sets no use_sim_time itself."""
+    return "--ros-args" in argv and not sets_sim_time(argv)
 
 
 def _process_spec(profile: StackProfile, process: ProcessProfile) -> NodeSpec:
     """One process of a profile as the launcher starts it (--ros-args only for commands that take them)."""
+    argv, cwd, env = process.argv, profile.cwd_path(process), process.environment
     if not process.ros_args:
-        return NodeSpec(process.name, process.argv, rename_node=False)
+        return NodeSpec(process.name, argv, rename_node=False, cwd=cwd, env=env)
     parameters: dict[str, str | int | float | bool] = dict(process.parameters)
-    if profile.use_sim_time:
+    if profile.use_sim_time and not sets_sim_time(argv):
         parameters.setdefault("use_sim_time", True)
     return NodeSpec(
         process.name,
-        process.argv,
+        argv,
         remappings=dict(process.remappings),
         params_files=profile.params_paths(process),
         parameters=parameters,
         rename_node=False,
+        cwd=cwd,
+        env=env,
     )
 
 

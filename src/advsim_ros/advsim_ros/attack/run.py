@@ -20,14 +20,16 @@ import json
 import os
 import resource
 import secrets
+import shlex
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from advsim_ros.adapters.profile import StackProfile
 from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
@@ -143,7 +145,10 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
         stack.raw(path.read_bytes() if path.exists() else b"")
     adapter = options.stack.adapter_profile()
     if adapter is not None:
-        stack.text(json.dumps({**json.loads(adapter.to_json()), "folder": ""}, sort_keys=True))
+        stack.text(json.dumps(_adapter_identity(adapter), sort_keys=True))
+    processes = options.stack.processes()
+    if any(process.cwd or process.env for process in processes):  # digested: env values may be secrets
+        stack.text(json.dumps(_environments(processes), sort_keys=True))
     return Fingerprint(
         {
             "bag": str(checked.bag),
@@ -151,6 +156,8 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
             "window_start_frame": checked.window.window_start_frame,
             "stack": " ".join(options.stack.command),
             "stack_remappings": dict(sorted(options.stack.remappings.items())),
+            # the other processes of a stack of several (absent otherwise: journals from before resume)
+            **({"stack_processes": [shlex.join(p.command) for p in processes[1:]]} if len(processes) > 1 else {}),
             "stack_parameters": stack.hexdigest(),
             "mode": "replay" if options.replay_only else "attack",
             **({"loop": options.loop} if options.loop != "open" else {}),  # open-loop journals of before resume
@@ -165,6 +172,22 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
             "parameters": params.hexdigest(),
         }
     )
+
+
+def _adapter_identity(adapter: StackProfile) -> dict[str, Any]:
+    """The adapter profile as the fingerprint takes it: not where its file lies, and processes without the
+    cwd and env keys when they are unset (fingerprinted apart; journals from before they existed resume)."""
+    values: dict[str, Any] = {**json.loads(adapter.to_json()), "folder": ""}
+    values["processes"] = [
+        {key: value for key, value in process.items() if not (key in ("cwd", "env") and not value)}
+        for process in values["processes"]
+    ]
+    return values
+
+
+def _environments(processes: Sequence[NodeSpec]) -> dict[str, Any]:
+    """Each process's working folder and extra environment (they can change what a stack does)."""
+    return {p.name: {"cwd": str(p.cwd or ""), "env": dict(sorted(p.env.items()))} for p in processes}
 
 
 def run_attack(options: AttackOptions, progress: Callable[[dict[str, Any]], None] | None = None) -> AttackResult:

@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from advsim_ros.adapters.profile import load_profile
 from advsim_ros.attack import AttackError, AttackOptions, StackSpec, run_attack, search_notes
+from advsim_ros.attack.follow import stack_log_tails
 from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
@@ -80,11 +81,22 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     demo.set_defaults(run=_run_demo)
 
 
+class _StackCommands(argparse.Action):
+    """--stack, repeatable: the first one given replaces the default, each further one adds a process."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        given = getattr(namespace, self.dest)
+        setattr(namespace, self.dest, [*([] if given is self.default else given), values])
+
+
 def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--stack",
-        default="reference",
-        help='"reference" (modular), "learned", or a command line that starts your stack',
+        action=_StackCommands,
+        default=["reference"],
+        help='"reference" (modular, the default), "learned", or a command line that starts your stack; repeat it '
+        "for a stack of several processes (the first is the main one; --remap applies to all)",
     )
     parser.add_argument(
         "--remap",
@@ -141,7 +153,7 @@ def add_stack_arguments(parser: argparse.ArgumentParser) -> None:
 
 def stack_spec(args: argparse.Namespace) -> StackSpec:
     if args.stack_profile is not None:
-        if args.stack != "reference" or args.remap or args.remap_file is not None:
+        if args.stack != ["reference"] or args.remap or args.remap_file is not None:
             raise CommandError("--stack-profile says how to start and connect the stack: leave out --stack and --remap")
         spec = StackSpec.from_profile(load_profile(args.stack_profile))
         return dataclasses.replace(spec, restart=spec.restart and not args.no_restart)
@@ -161,7 +173,7 @@ def stack_spec(args: argparse.Namespace) -> StackSpec:
         if not separator or not source or not target:
             raise CommandError(f"--remap {item!r}: expected FROM:=TO")
         remappings[source] = target
-    spec = StackSpec.parse(args.stack, remappings)
+    spec = StackSpec.parse_all(args.stack, remappings)
     return dataclasses.replace(spec, restart=not args.no_restart, remap_mode=args.remap_mode)
 
 
@@ -265,12 +277,8 @@ def _exit_code(options: AttackOptions, out_dir: Path, summary: dict[str, Any]) -
         return 0
     command = "replay" if options.replay_only else "attack"
     print(f"advsim {command}: error: {verdict['reason']}", file=sys.stderr)
-    for process in options.stack.processes():
-        log = out_dir / "run" / "logs" / f"{process.name}.log"
-        lines = log.read_text(errors="replace").splitlines()[-10:] if log.exists() else []
-        tail = "".join(f"\n  {line}" for line in lines)
-        print(f"the last lines of the stack's log {log}:{tail}" if lines else f"the stack's log {log} is empty",
-              file=sys.stderr)  # fmt: skip
+    for line in stack_log_tails(out_dir, options.stack):
+        print(line, file=sys.stderr)
     return 1
 
 

@@ -17,7 +17,7 @@ def add_doctor_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     add_stack_arguments(doctor)
     doctor.add_argument("--window-start", type=int, default=0, help="first frame of the window (default 0)")
     doctor.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: <bag>-doctor)")
-    doctor.set_defaults(run=_run_doctor, connect_timeout=30.0)
+    doctor.set_defaults(run=_run_doctor)
 
 
 def _run_doctor(args: argparse.Namespace) -> int:

@@ -94,6 +94,16 @@ class PointFieldSpec:
     count: int  # number of consecutive elements of this datatype
 
 
+def packed_point_step(fields: Sequence[PointFieldLike]) -> int:
+    """The smallest point_step that holds every field (the end of the one that ends last)."""
+    ends = [0]
+    for field in fields:
+        if int(field.datatype) not in _DATATYPE_TO_NUMPY:
+            raise PointCloudError(f"PointCloud2: field {field.name!r} has unknown datatype {field.datatype}")
+        ends.append(int(field.offset) + np.dtype(_DATATYPE_TO_NUMPY[int(field.datatype)]).itemsize * int(field.count))
+    return max(ends)
+
+
 def pointfields_to_dtype(fields: Sequence[PointFieldLike], point_step: int, is_bigendian: bool) -> np.dtype:
     """The structured dtype (itemsize = point_step) that one point of this layout has.
 
@@ -165,18 +175,19 @@ def _integer(msg: PointCloud2Like, name: str) -> int:
         raise PointCloudError(f"PointCloud2: {name} is not an integer ({error})") from None
 
 
-def _checked_layout(msg: PointCloud2Like) -> tuple[np.dtype, int, int]:
-    """The dtype of one point, height and width, with x, y and z present as single numbers of any datatype."""
+def _checked_layout(msg: PointCloud2Like, require_xyz: bool = True) -> tuple[np.dtype, int, int]:
+    """The dtype of one point, height and width, with x, y and z present as single numbers of any datatype
+    (unless ``require_xyz`` is false: any layout)."""
     point_step = _integer(msg, "point_step")
     if point_step > _MAX_POINT_STEP:  # numpy's itemsize is a C int
         raise PointCloudError(f"PointCloud2: point_step {point_step} is larger than any point layout")
     dtype = pointfields_to_dtype(msg.fields, point_step, bool(msg.is_bigendian))
     names = dtype.names or ()
     missing = [name for name in POINT_XYZ_FIELDS if name not in names]
-    if missing:
+    if missing and require_xyz:
         raise PointCloudError(f"PointCloud2 without {', '.join(missing)} field(s): has fields {list(names)}")
-    arrays = [name for name in POINT_XYZ_FIELDS if dtype[name].shape]
-    if arrays:
+    arrays = [name for name in POINT_XYZ_FIELDS if name in names and dtype[name].shape]
+    if arrays and require_xyz:
         raise PointCloudError(f"PointCloud2: field(s) {', '.join(arrays)} have count > 1; x, y, z are single numbers")
     height, width = _integer(msg, "height"), _integer(msg, "width")
     if height < 0 or width < 0:
@@ -184,10 +195,10 @@ def _checked_layout(msg: PointCloud2Like) -> tuple[np.dtype, int, int]:
     return dtype, height, width
 
 
-def _cloud_rows(msg: PointCloud2Like) -> tuple[np.dtype, np.ndarray]:
+def _cloud_rows(msg: PointCloud2Like, require_xyz: bool = True) -> tuple[np.dtype, np.ndarray]:
     """The point dtype and a (height, width * point_step) uint8 view of the message's bytes, sizes checked;
     for a cloud without points, a (0, 0) array of points (the other dimension may be any number)."""
-    dtype, height, width = _checked_layout(msg)
+    dtype, height, width = _checked_layout(msg, require_xyz)
     point_step, row_step = dtype.itemsize, _integer(msg, "row_step")
     if height * width == 0:
         return dtype, np.zeros((0, 0), dtype=dtype)
@@ -207,24 +218,25 @@ def _cloud_rows(msg: PointCloud2Like) -> tuple[np.dtype, np.ndarray]:
     return dtype, np.lib.stride_tricks.as_strided(raw, shape=(height, width * point_step), strides=(row_step, 1))
 
 
-def cloud_view(msg: PointCloud2Like) -> np.ndarray:
+def cloud_view(msg: PointCloud2Like, require_xyz: bool = True) -> np.ndarray:
     """The cloud's points as a (height, width) structured view of the message's bytes, without a copy
     ((0, 0) when it has no points).
 
-    Checks everything cloud_to_points checks; for looking at clouds (layout, finite points)
-    without decoding them.
+    Checks everything cloud_to_points checks (x, y and z only with ``require_xyz``); for looking at
+    clouds (layout, finite points) without decoding them.
     """
-    dtype, rows = _cloud_rows(msg)
+    dtype, rows = _cloud_rows(msg, require_xyz)
     return rows if rows.dtype == dtype else rows.view(dtype)
 
 
-def cloud_to_points(msg: PointCloud2Like) -> np.ndarray:
+def cloud_to_points(msg: PointCloud2Like, require_xyz: bool = True) -> np.ndarray:
     """The cloud's points as a 1-D structured array (height x width points, row-major).
 
     Every field of the source is kept with its datatype and offset; x, y and z are
-    required (any numeric datatype, count 1). Raises PointCloudError naming the problem.
+    required (any numeric datatype, count 1) unless ``require_xyz`` is false. Raises
+    PointCloudError naming the problem.
     """
-    dtype, rows = _cloud_rows(msg)
+    dtype, rows = _cloud_rows(msg, require_xyz)
     if rows.dtype == dtype:
         return rows.reshape(-1)  # no points
     # One copy of the bytes, viewed as points: padding between fields survives (a structured .copy() leaves
@@ -281,12 +293,17 @@ def points_to_cloud_fields(points: np.ndarray) -> tuple[tuple[PointFieldSpec, ..
     Raises PointCloudError for arrays without x, y, z and for field types PointCloud2
     cannot carry (e.g. float16, int64, nested records); convert those first.
     """
-    dtype = points.dtype
-    names = dtype.names or ()
+    names = points.dtype.names or ()
     missing = [name for name in POINT_XYZ_FIELDS if name not in names]
     if missing:
         raise PointCloudError(f"points without {', '.join(missing)} field(s): has fields {list(names)}")
-    points_are_bigendian(points)  # rejects mixed byte orders
+    return dtype_to_cloud_fields(points.dtype)
+
+
+def dtype_to_cloud_fields(dtype: np.dtype) -> tuple[tuple[PointFieldSpec, ...], int]:
+    """The PointField list and point_step of a structured dtype, whatever its fields (see points_to_cloud_fields)."""
+    names = dtype.names or ()
+    dtype_is_bigendian(dtype)  # rejects mixed byte orders
     specs: list[PointFieldSpec] = []
     assert dtype.fields is not None
     for name in names:
@@ -304,7 +321,11 @@ def points_to_cloud_fields(points: np.ndarray) -> tuple[tuple[PointFieldSpec, ..
 
 def points_are_bigendian(points: np.ndarray) -> bool:
     """The is_bigendian flag for ``points.tobytes()``; raises PointCloudError when fields mix byte orders."""
-    dtype = points.dtype
+    return dtype_is_bigendian(points.dtype)
+
+
+def dtype_is_bigendian(dtype: np.dtype) -> bool:
+    """The is_bigendian flag of a structured dtype's bytes; raises PointCloudError when fields mix byte orders."""
     fields: dict[str, tuple[np.dtype, int]] = dict(dtype.fields or {})  # type: ignore[arg-type]
     native = "<" if np.little_endian else ">"
     orders = {

@@ -51,6 +51,8 @@ class NodeSpec:
     params_files: tuple[Path, ...] = ()  # YAML files in the /<node>: ros__parameters: shape
     parameters: Mapping[str, str | int | float | bool] = field(default_factory=dict)  # -p overrides
     rename_node: bool = True  # add `-r __node:=name` (off for multi-node stacks)
+    cwd: Path | None = None  # working folder (None: the orchestrator's)
+    env: Mapping[str, str] = field(default_factory=dict)  # extra environment; the graph's own variables win
 
     def argv(self) -> list[str]:
         ros_args: list[str] = []
@@ -167,6 +169,8 @@ def graph_overrides(domain_id: int) -> dict[str, str]:
 
 
 _NETWORK_SETTINGS = ("ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY", "FASTDDS_BUILTIN_TRANSPORTS", "ROS_DISCOVERY_SERVER")
+# What keeps a process on its graph and tells its publishers apart: a stack's own env never sets these
+GRAPH_VARIABLES = frozenset((*graph_overrides(0), *_NETWORK_SETTINGS, RUN_MARKER))
 
 
 def graph_environment(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -219,10 +223,16 @@ class Launcher:
     def start(self, spec: NodeSpec) -> subprocess.Popen[bytes]:
         log_path = self._log_dir / f"{spec.name}.log"
         log_file = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
+        kept = sorted(GRAPH_VARIABLES.intersection(spec.env))
+        if kept:  # said where the user looks when the stack misbehaves: its own log
+            log_file.write(f"advsim: env {', '.join(kept)} of {spec.name} not set: the graph sets them\n".encode())
+            log_file.flush()
+        env = {**self._env, **{key: value for key, value in spec.env.items() if key not in GRAPH_VARIABLES}}
         try:
             process = subprocess.Popen(
                 die_with_parent(spec.argv()),
-                env=self._env,
+                env=env,
+                cwd=spec.cwd,
                 stdin=subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=subprocess.STDOUT,
