@@ -4,7 +4,7 @@
     result = run_attack(AttackOptions(bag=Path("log.bag"), out_dir=Path("out"), stack=StackSpec.reference()))
 
 Every node and the stack run as separate processes (own launcher; `ros2 launch` is not available
-from the wheels) on a reserved ROS_DOMAIN_ID with discovery on loopback, tied to this process
+from the wheels) on a reserved ROS_DOMAIN_ID, DDS over shared memory only, tied to this process
 (ros.launcher: nothing of the graph outlives it). This process follows the graph through a monitor
 node and appends every finished query to OUTDIR/queries.jsonl (the journal) as it finishes.
 Running the same attack again resumes from the journal: finished queries are replayed into the

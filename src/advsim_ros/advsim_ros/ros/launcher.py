@@ -1,7 +1,7 @@
 """A small process launcher for ROS 2 node graphs (ros2 launch is not available from the wheels).
 
 Every node and the stack under test run as separate processes with `--ros-args`, on one isolated
-ROS_DOMAIN_ID with discovery kept on loopback. Output goes to one log file per process.
+ROS_DOMAIN_ID whose DDS runs over shared memory only (no network socket). Output goes to one log file per process.
 
 No process outlives its graph, however the orchestrator ends (kill -9 included): each process
 runs in a process group of its own with the parent-death signal set (it gets SIGKILL when the
