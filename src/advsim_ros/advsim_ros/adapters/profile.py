@@ -144,7 +144,7 @@ class TimingProfile:
     decision_delay: float = 0.1  # timer: the plan in force this long after the decision sweep is scored [s]
     max_plan_age: float = 0.5  # timer: older plans are not in force (they belong to an earlier query) [s]
     plan_stamp: str = "header"  # timer: when a plan was made: its header stamp, or its arrival on the sim clock
-    answer_margin: float = 0.05  # timer: plans made by the decision time are taken this much later (sim clock) [s]
+    answer_margin: float = 0.5  # timer: a stack making no plan after the decision time is answered this late [s]
 
     def __post_init__(self) -> None:
         if self.mode not in TIMING_MODES:

@@ -2,9 +2,11 @@
 
 A stack planning on its own timer answers no sweep in particular. The sweep stamped S is answered
 with the plan in force at its decision time D = S + decision_delay: the latest plan made at or
-before D and no older than max_plan_age (older ones belong to an earlier query), chosen once the
-sim clock is answer_margin past D, so that a plan made at D itself has arrived. When none is in
-force, the first plan made after D answers (the stack had not planned yet).
+before D and no older than max_plan_age (older ones belong to an earlier query), chosen once a
+plan made at or after D has arrived: one publisher's plans arrive in the order they were made, so
+the choice never depends on how long the stack computed. A stack that plans no more is answered
+when the sim clock is answer_margin past D. When none is in force, the first plan made after D
+answers (the stack had not planned yet).
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ class PlanBook(Generic[PlanT]):
         answers = []
         for sweep in list(self.pending):
             decision = sweep + delay
-            if clock_ns < decision + margin:
+            settled = bool(self.made) and self.made[-1][0] >= decision
+            if not settled and clock_ns < decision + margin:
                 continue
             in_force = [item for item in self.made if decision - oldest <= item[0] <= decision]
             later = [item for item in self.made if item[0] > decision]

@@ -116,6 +116,7 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
             clock_step=profile.timing.clock_step,
             real_time_factor=profile.timing.real_time_factor,
             wait_for_every_plan=False,
+            await_relay=options.stack.adapter_profile() is not None,
         )
     for node, values in options.parameter_overrides.items():
         # nested: the user's search.bo.initial_points must not drop bo.max_queries set from --queries above

@@ -46,6 +46,8 @@ RENDERED = TopicSpec("/advsim/rendered_points", names.POINTCLOUD2, qos.STREAM)  
 EPISODE = TopicSpec("/advsim/episode", names.EPISODE, qos.HISTORY)
 SCORE = TopicSpec("/advsim/score", names.QUERY_SCORE, qos.HISTORY)
 SEARCH_STATUS = TopicSpec("/advsim/search_status", names.SEARCH_STATUS, qos.LATCHED)
+# stack_adapter -> player, timer-driven stacks: a frame's inputs (stamp) are in the stack's readers
+RELAYED = TopicSpec("/advsim/relayed", names.HEADER, qos.STREAM)
 
 # The stack's side of the contract: what `--remap` may name.
 # What the stack under test reads (published by the graph) and what it answers (read by the graph)
@@ -64,6 +66,7 @@ ALL_TOPICS: tuple[TopicSpec, ...] = (
     EPISODE,
     SCORE,
     SEARCH_STATUS,
+    RELAYED,
 )
 
 

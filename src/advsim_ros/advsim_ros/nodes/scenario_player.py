@@ -81,10 +81,10 @@ class ScenarioPlayer(ScenarioNode):
                 )
             ),
         )
-        arrivals = [lockstep.StampedArrivals() for _ in range(4)]
+        arrivals = [lockstep.StampedArrivals() for _ in range(5)]
         self.inputs = lockstep.Inputs(*arrivals)
         for topic, stream in zip(
-            (topics.RENDERED, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS), arrivals, strict=True
+            (topics.RENDERED, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS, topics.RELAYED), arrivals, strict=True
         ):
             self.subscribe(topic, stream.add, raw=True)
         names = lockstep.StackNames.from_pairs(self.config.stack_topics)

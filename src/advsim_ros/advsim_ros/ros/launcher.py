@@ -157,13 +157,15 @@ def graph_overrides(domain_id: int) -> dict[str, str]:
     The profile gives Fast DDS no network transport at all (discovery and data over shared memory,
     segments large enough for whole sweeps), so the graph is reachable from this machine only and
     opens no socket. SYSTEM_DEFAULT keeps rmw_fastrtps from adding a UDP transport of its own (it
-    does for LOCALHOST, bound to every interface).
+    does for LOCALHOST, bound to every interface). Publishing is synchronous (sent before publish
+    returns), which the player's ordering of /clock after a frame's inputs relies on.
     """
     return {
         "ROS_DOMAIN_ID": str(domain_id),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
         "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
         "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES),
+        "RMW_FASTRTPS_PUBLICATION_MODE": "SYNCHRONOUS",
         "PYTHONUNBUFFERED": "1",
     }
 

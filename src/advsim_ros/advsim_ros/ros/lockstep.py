@@ -34,6 +34,7 @@ from advsim_ros.ros.identity import ForeignEndpoint, Membership
 
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
+RELAY_WAIT = 5.0  # longest wait for stack_adapter to pass a frame's inputs on to a timer-driven stack [s]
 # Nodes of the attack graph itself; every other node on the domain belongs to the stack.
 GRAPH_NODE_NAMES = frozenset(
     {"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor", "stack_adapter"}
@@ -249,6 +250,7 @@ class PlayerConfig:
     reactive_actors: bool = False  # closed loop: moving vehicles react to the ego (IDM along paths; core.reactive)
     clock_step: float = 0.0  # > 0: a stack planning on its own timer; /clock advances in these steps [s]
     real_time_factor: float = 1.0  # clock_step > 0: simulated seconds per wall-clock second while stepping
+    await_relay: bool = False  # clock_step > 0: /clock reaches a frame once stack_adapter passed its inputs on
 
     def __post_init__(self) -> None:
         for name in ("plan_timeout", "sweep_timeout", "ready_timeout", "settle_time", "real_time_factor"):
@@ -288,6 +290,7 @@ class Inputs:
     plans: StampedArrivals
     detections: StampedArrivals
     predictions: StampedArrivals
+    relayed: StampedArrivals = field(default_factory=StampedArrivals)  # stack_adapter's acknowledgements
 
 
 def replay_query(
@@ -344,7 +347,9 @@ def replay_query(
         decision = index == count - 1
         sweep = inputs.sweeps.wait(sim, config.sweep_timeout, watch_stack)
         request(index + config.prefetch_frames)
-        outputs.clock(codec.clock_cdr(sim))
+        stepping = config.clock_step > 0.0
+        if not stepping:
+            outputs.clock(codec.clock_cdr(sim))
         outputs.tf(outputs.tf_message(sim, frame.world_T_ego))
         outputs.odometry(codec.restamp(frame.odometry, sim))
         inputs_digest.frame(frame.log_stamp_ns, frame.odometry, frame.world_T_ego)
@@ -353,7 +358,10 @@ def replay_query(
             outputs.trace("sweep_sent", query_id, index)
             delivered += 1
             inputs_digest.sweep(sweep)
-        stepping = config.clock_step > 0.0
+        if stepping:  # a timer fires when /clock reaches it: the frame's inputs must be there first
+            if config.await_relay:
+                inputs.relayed.wait(sim, RELAY_WAIT, stack_gone)
+            outputs.clock(codec.clock_cdr(sim))
         if stepping and not decision:  # a timer-driven stack: time passes between sweeps as on the road
             until = clock.to_sim(query_id, history[index + 1].log_stamp_ns)
             _step_clock(sim, until, config, outputs, stop)
