@@ -18,7 +18,7 @@ ALLOWED = {
     "attack": {"core", "contract", "io", "ros", "nodes", "viz", "adapters", "attack"},
     "labelling": {"core", "contract", "io", "stacks", "labelling"},
     "viz": {"core", "contract", "io", "viz"},
-    "export": {"core", "contract", "io", "viz", "export"},
+    "export": {"core", "contract", "io", "viz", "adapters", "export"},
     "campaign": {"core", "contract", "io", "ros", "attack", "viz", "adapters", "campaign"},
 }
 

@@ -1,4 +1,4 @@
-"""`advsim export openscenario BAG -o FILE.xosc` (logic in advsim_ros.export.openscenario)."""
+"""`advsim export openscenario BAG -o FILE.xosc` and `advsim export route BAG -o FILE` (logic in advsim_ros.export)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,29 @@ def add_export_commands(
     xosc.add_argument("-o", "--output", type=Path, required=True, help="file to write, e.g. scenario.xosc")
     xosc.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     xosc.set_defaults(run=_run_openscenario)
+    route = formats.add_parser(
+        "route", help="the logged ego route from a window on, for a planner that follows one (CSV, GeoJSON, Path bag)"
+    )
+    route.add_argument("bag", type=Path, help="scenario bag (a converted log or an attack's adversarial/)")
+    route.add_argument(
+        "-o", "--output", type=Path, required=True,
+        help="route.csv (x,y,yaw,speed), route.geojson (lon/lat), or a folder name: a bag with nav_msgs/Path on /route",
+    )  # fmt: skip
+    route.add_argument("--window-start", type=int, default=0, help="the attack's first frame (default 0)")
+    route.add_argument(
+        "--stack-profile", type=Path, default=None,
+        help="the stack's profile: the route in its plans' frame (first fix, datum, static), GeoJSON from its datum",
+    )  # fmt: skip
+    route.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    route.set_defaults(run=_run_route)
     return formats
+
+
+def _run_route(args: Any) -> int:
+    from advsim_ros.export.route import export_route
+
+    print(export_route(args.bag, args.output, args.window_start, args.stack_profile, args.overwrite))
+    return 0
 
 
 def _run_openscenario(args: Any) -> int:

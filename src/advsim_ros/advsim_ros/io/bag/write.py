@@ -10,7 +10,7 @@ is stored in the bag and every topic records the QoS the contract offers it with
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -92,22 +92,38 @@ def write_scenario_bag(
     sensor_frame = sensor_frame_of(scenario, config)
     if sensor_frame in (config.world_frame, config.ego_frame) and scenario.sweeps:
         raise BagError(f"sensor frame {sensor_frame!r} must differ from world_frame and ego_frame")
+    if config.compress and config.storage != "mcap":
+        raise BagError("BagConfig compress: only MCAP storage is compressed")
+
+    def fill(writer: Writer) -> None:
+        _write_messages(writer, scenario, config, source, sensor_frame)
+        _write_extra(writer, extra)
+
+    custom = {"advsim_ros.scenario_id": scenario.scenario_id}
+    return _write_bag(path, overwrite, fill, storage=config.storage, compress=config.compress, custom=custom)
+
+
+def _write_bag(
+    path: Path,
+    overwrite: bool,
+    fill: Callable[[Writer], None],
+    *,
+    storage: str = "mcap",
+    compress: bool = False,
+    custom: Mapping[str, str] | None = None,
+) -> Path:
+    """A rosbag2 folder at path, staged beside it and renamed into place once fill() has written it."""
     try:
         with atomic_folder(path, overwrite) as bag_dir:
-            writer = Writer(
-                bag_dir,
-                version=Writer.VERSION_LATEST,
-                storage_plugin=StoragePlugin.MCAP if config.storage == "mcap" else StoragePlugin.SQLITE3,
-            )
-            if config.compress:
-                if config.storage != "mcap":
-                    raise BagError("BagConfig compress: only MCAP storage is compressed")
+            plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+            writer = Writer(bag_dir, version=Writer.VERSION_LATEST, storage_plugin=plugin)
+            if compress:
                 writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-            writer.set_custom_data("advsim_ros.scenario_id", scenario.scenario_id)
+            for key, value in (custom or {}).items():
+                writer.set_custom_data(key, value)
             writer.open()
             try:
-                _write_messages(writer, scenario, config, source, sensor_frame)
-                _write_extra(writer, extra)
+                fill(writer)
             except BaseException:
                 writer.abort()
                 raise
@@ -184,3 +200,8 @@ def _write_extra(writer: Writer, extra: Sequence[tuple[str, str, int, bytes]]) -
                 topic, msgtype, typestore=store, offered_qos_profiles=[bag_qos(qos)]
             )
         writer.write(connections[(topic, msgtype)], int(stamp), raw)
+
+
+def write_messages_bag(path: Path, messages: Sequence[tuple[str, str, int, bytes]], overwrite: bool = False) -> Path:
+    """A rosbag2 folder (MCAP) of just these (topic, message type, stamp [ns], CDR bytes), written atomically."""
+    return _write_bag(Path(path), overwrite, lambda writer: _write_extra(writer, messages))
