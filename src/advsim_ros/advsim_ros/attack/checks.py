@@ -26,7 +26,7 @@ from advsim_ros.core.objective import scorer_settings_from_params
 from advsim_ros.core.search.driver import DriverConfig
 from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_from_params
 from advsim_ros.core.types import Scenario, ScenarioError
-from advsim_ros.io.bag import BagConfig, check_lidar_sweeps, read_scenario_bag, summarize_bag
+from advsim_ros.io.bag import BagConfig, check_lidar_sweeps, lidar_topic_of, read_scenario_bag, summarize_bag
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,9 +81,11 @@ def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
     parameters = {node: node_parameters(files[node], node, overrides) for node in GRAPH_NODES}
     bag_config = section(parameters["scenario_player"], "bag", BagConfig, "bag")
     scenario = read_scenario_bag(bag, config=bag_config, load_sweeps=False)
-    lidar = summarize_bag(bag).topics.get(bag_config.lidar_topic)
+    held = summarize_bag(bag).topics
+    lidar_topic = lidar_topic_of({topic: summary.msgtype for topic, summary in held.items()}, bag_config.lidar_topic)
+    lidar = held.get(lidar_topic)
     if lidar is None or lidar.message_count == 0:
-        raise ScenarioError(f"{bag}: no LiDAR sweeps on {bag_config.lidar_topic}; an attack needs them")
+        raise ScenarioError(f"{bag}: no LiDAR sweeps on {lidar_topic}; an attack needs them")
     start = options.window_start_frame
     if start is None:
         start = 0 if options.replay_only else choose_window(scenario, params_dir)

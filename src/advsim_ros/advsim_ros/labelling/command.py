@@ -5,6 +5,8 @@
 - The LiDAR mount: ``--mount`` when given, else the bag's /tf_static (or ScenarioInfo).
 - Tracks: auto-labelled from the LiDAR (``labelling.pipeline``), or, with ``--tracks-topic``,
   taken from a perception topic already in the bag (``labelling.perception``).
+- The output bag has the contract's topics and frames, whatever the input's were (``--bag-params``
+  describes the input only), so curate, attack, replay and report read it without a description.
 - Beside the output bag, ``<bag>.labels.json`` lists every track with its class, confidence and
   the quality gates it failed (only tracks that pass all gates are actors in the bag).
 """
@@ -189,8 +191,10 @@ def label_bag(
     source = f"labelled/{bag.name}: actor tracks {described}" + (
         "" if own_poses else "; ego poses from KISS-ICP LiDAR odometry"
     )
+    # written in the contract's topics and frames (the sensor frame kept): every later command reads it as it is
+    written = BagConfig(sensor_frame=config.sensor_frame, storage=config.storage, compress=config.compress)
     write_scenario_bag(
-        dataclasses.replace(scenario, actors=actors), output, config=config, source=source, overwrite=overwrite
+        dataclasses.replace(scenario, actors=actors), output, config=written, source=source, overwrite=overwrite
     )
     _write_json(report_path, {"bag": str(output), "source": source, "summary": summary, "tracks": rows})
     return LabelReport(

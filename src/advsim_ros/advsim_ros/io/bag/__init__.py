@@ -2,7 +2,8 @@
 
 A scenario bag is a rosbag2 folder (metadata.yaml + storage file, as ``ros2 bag record``
 makes them); docs/data.md documents its topics. Users' own bags need only the LiDAR topic
-and the ego pose (odometry or /tf). Modules: ``config`` (topics and frames), ``storage``
+and the ego pose (odometry or /tf); a bag whose one PointCloud2 topic is not the contract's is
+read from it. Modules: ``config`` (topics and frames), ``storage``
 (opening bags), ``read`` and ``write`` (scenarios), ``poses`` (users' ego poses).
 """
 
@@ -14,6 +15,7 @@ from advsim_ros.io.bag.storage import (
     TopicSummary,
     check_lidar_sweeps,
     iter_bag_sweeps,
+    lidar_topic_of,
     summarize_bag,
 )
 from advsim_ros.io.bag.write import write_scenario_bag
@@ -26,6 +28,7 @@ __all__ = [
     "TopicSummary",
     "check_lidar_sweeps",
     "iter_bag_sweeps",
+    "lidar_topic_of",
     "load_bag_config",
     "read_scenario_bag",
     "summarize_bag",

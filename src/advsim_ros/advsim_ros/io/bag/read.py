@@ -60,7 +60,7 @@ def read_scenario_bag(path: Path, *, config: BagConfig | None = None, load_sweep
     config = config or BagConfig()
     path = Path(path)
     with BagReader(path) as bag:
-        lidar = bag.connection(config.lidar_topic, names.POINTCLOUD2, required="LiDAR (sensor_msgs/msg/PointCloud2)")
+        lidar = bag.lidar_connection(config.lidar_topic, required="LiDAR (sensor_msgs/msg/PointCloud2)")
         info_conn = bag.connection(config.info_topic, names.SCENARIO_INFO)
         own_bag = info_conn is not None
         use_tf = config.ego_pose_source == "tf" and not own_bag
@@ -80,7 +80,7 @@ def read_scenario_bag(path: Path, *, config: BagConfig | None = None, load_sweep
         if lidar is not None and (load_sweeps or not own_bag):  # users' bags take their frames from the sweeps
             wanted.append(lidar)
         collected = _collect(bag, wanted, config, pose_conn, lidar, keep_points=load_sweeps)
-    collected.dropped.report(log, f"bag {path}", config.lidar_topic)
+    collected.dropped.report(log, f"bag {path}", lidar.topic)
     return _assemble(path, collected, config, own_bag, load_sweeps)
 
 

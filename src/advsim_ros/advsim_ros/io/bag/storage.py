@@ -13,7 +13,7 @@ import logging
 import os
 import struct
 from collections import defaultdict
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -30,7 +30,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype, TypesysError
 from rosbags.typesys.store import Typestore
 
-from advsim_ros.contract import codec, names
+from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.pointcloud import DroppedPoints, cloud_to_points, cloud_view, finite_mask
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag.config import BagConfig, BagError
@@ -194,6 +194,15 @@ class BagReader:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def lidar_connection(self, configured: str, required: str) -> Connection:
+        """The LiDAR's connection: the configured topic, or the bag's only PointCloud2 topic (lidar_topic_of)."""
+        topic = lidar_topic_of({c.topic: c.msgtype for c in self.reader.connections}, configured)
+        if topic != configured:
+            _say_lidar_found(str(self.path), topic)
+        found = self.connection(topic, names.POINTCLOUD2, required=required)
+        assert found is not None  # required
+        return found
+
     def connection(self, topic: str, msgtype: str, required: str = "") -> Connection | None:
         """The topic's connection; BagError when it has another type, or is missing and ``required`` says why."""
         matches = [c for c in self.reader.connections if c.topic == topic]
@@ -310,6 +319,20 @@ def _typestore(definitions: tuple[tuple[str, str, str], ...], msgtypes: frozense
     return store
 
 
+def lidar_topic_of(topic_types: Mapping[str, str], configured: str) -> str:
+    """The topic the LiDAR is read from: the configured one; but when that is the contract's default (the
+    user named none) and the bag lacks it, the bag's PointCloud2 topic if it has exactly one."""
+    if configured in topic_types or configured != topics.LIDAR.name:
+        return configured
+    clouds = sorted(topic for topic, msgtype in topic_types.items() if msgtype == names.POINTCLOUD2)
+    return clouds[0] if len(clouds) == 1 else configured
+
+
+@functools.cache
+def _say_lidar_found(path: str, topic: str) -> None:
+    log.warning(f"bag {path}: LiDAR read from {topic}, its only PointCloud2 topic (lidar_topic names another)")
+
+
 def summarize_bag(path: Path) -> BagSummary:
     """Topics, message counts, time span and size of a bag (reads only its metadata and index)."""
     with BagReader(Path(path)) as bag:
@@ -355,8 +378,7 @@ def check_lidar_sweeps(path: Path, config: BagConfig, stamps: Collection[int]) -
     wanted = set(stamps)
     found: set[int] = set()
     with BagReader(Path(path)) as bag:
-        lidar = bag.connection(config.lidar_topic, names.POINTCLOUD2, required="LiDAR (sensor_msgs/msg/PointCloud2)")
-        assert lidar is not None
+        lidar = bag.lidar_connection(config.lidar_topic, required="LiDAR (sensor_msgs/msg/PointCloud2)")
         for _, stamp, cloud in bag.messages([lidar]):
             try:
                 points = cloud_view(cloud)
@@ -377,9 +399,8 @@ def iter_bag_sweeps(path: Path, config: BagConfig | None = None) -> Iterator[tup
     config = config or BagConfig()
     dropped = DroppedPoints()
     with BagReader(Path(path)) as bag:
-        lidar = bag.connection(config.lidar_topic, names.POINTCLOUD2, required="LiDAR")
-        assert lidar is not None
+        lidar = bag.lidar_connection(config.lidar_topic, required="LiDAR")
         for _, stamp, cloud in bag.messages([lidar]):
             points = cloud_points(bag, lidar.topic, cloud, stamp, dropped)
             yield codec.stamp_ns(cloud.header.stamp), str(cloud.header.frame_id), points
-    dropped.report(log, f"bag {path}", config.lidar_topic)
+    dropped.report(log, f"bag {path}", lidar.topic)
