@@ -63,11 +63,14 @@ class GateConfig:
     max_heading_misalignment_deg: float = 35.0  # a moving vehicle moves along its box, within this [deg]
     classes: tuple[str, ...] = ("vehicle", "pedestrian", "cyclist")  # classes that become actors
     small_must_move: bool = True  # static "pedestrians" and "cyclists" are mostly poles and trunks: dropped
+    max_share_inside: float = 0.5  # a track inside another actor's box this share of its frames: a duplicate, or
+    # (a pedestrian or cyclist inside a vehicle) part of it (labelling/overlaps.py)
+    inside_margin: float = 0.3  # the other's box grown by this for that test [m]
 
     def __post_init__(self) -> None:
         if self.min_detections < 1:
             raise ScenarioError("labelling gates min_detections: must be >= 1")
-        for name in ("min_detection_ratio", "min_class_share", "min_confidence"):
+        for name in ("min_detection_ratio", "min_class_share", "min_confidence", "max_share_inside"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ScenarioError(f"labelling gates {name}: must lie in [0, 1], got {value}")
@@ -78,6 +81,8 @@ class GateConfig:
             static_displacement=self.static_displacement,
             max_heading_misalignment_deg=self.max_heading_misalignment_deg,
         )
+        if self.inside_margin < 0.0:
+            raise ScenarioError(f"labelling gates inside_margin: must be >= 0, got {self.inside_margin}")
         if len(self.vehicle_height) != 2 or not 0 < self.vehicle_height[0] < self.vehicle_height[1]:
             raise ScenarioError(f"labelling gates vehicle_height: expected [low, high], got {self.vehicle_height}")
         known = {"vehicle", "pedestrian", "cyclist", "other"}

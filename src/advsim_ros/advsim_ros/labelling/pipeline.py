@@ -11,6 +11,7 @@ import numpy as np
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray, ScenarioError
 from advsim_ros.labelling.config import LabellingConfig
 from advsim_ros.labelling.detection import Candidates, concatenate, detect_sweep
+from advsim_ros.labelling.overlaps import gate_overlaps
 from advsim_ros.labelling.refine import LabelledTrack, refine_track
 from advsim_ros.labelling.tracking import associate_forwards, link_fragments
 from advsim_ros.stacks.modular.detector import CLASS_ORDER
@@ -69,6 +70,7 @@ def label_candidates(
         for track_rows in sorted(tracks, key=lambda track: (int(part.frames[track[0]]), int(track[0]))):
             labelled.append(refine_track("pending", track_rows, part, frame_stamps_ns, times_s, ego_yaws, config))
     labelled.sort(key=lambda item: (int(item.track.stamps_ns[0]), item.track.actor_class.value))
+    labelled = gate_overlaps(labelled, config.gates)
     numbered = []
     for index, item in enumerate(labelled, start=1):
         track = item.track
