@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from advsim_ros.adapters.profile import TimingProfile
-from advsim_ros.adapters.timing import PlanBook
+from advsim_ros.adapters.timing import FrameRelay, PlanBook
 
 MS = 1_000_000
 S = 10_000 * MS  # the sweep's stamp
@@ -58,3 +58,14 @@ def test_plans_arriving_out_of_order_are_kept_in_the_order_they_were_made() -> N
     book.plan(S + 40 * MS, "a")
     assert [made for made, _ in book.made] == [S + 40 * MS, S + 90 * MS]
     assert book.due(S + 150 * MS)[0][2] == "b"
+
+
+def test_a_frame_is_passed_on_once_its_pose_and_its_relayed_sweep_went_to_the_stack() -> None:
+    relay = FrameRelay(relays_sweeps=True)
+    assert not relay.passed_on(S, "sweep")
+    assert relay.passed_on(S, "pose")
+    assert not relay.passed_on(S + 100 * MS, "pose")  # its sweep never came (the player's wait timed out)
+    assert not relay.passed_on(S + 200 * MS, "pose")
+    assert relay.passed_on(S + 200 * MS, "sweep")
+    assert relay.passed == {}  # the incomplete earlier frame is forgotten with it
+    assert FrameRelay(relays_sweeps=False).passed_on(S, "pose")  # the stack reads the player's LiDAR itself

@@ -62,3 +62,22 @@ class PlanBook(Generic[PlanT]):
             self.answered.add(sweep)
             answers.append((sweep, chosen[0], chosen[1]))
         return answers
+
+
+@dataclass
+class FrameRelay:
+    """Which frames' inputs a timer-driven stack has been passed in full (the player moves /clock to a
+    frame only then): its pose, and its sweep when the adapter relays the LiDAR."""
+
+    relays_sweeps: bool = False
+    passed: dict[int, set[str]] = field(default_factory=dict)  # frame stamp -> kinds passed on so far
+
+    def passed_on(self, stamp_ns: int, kind: str) -> bool:
+        """Record that the frame's pose or sweep went to the stack; True once the frame is complete."""
+        kinds = self.passed.setdefault(stamp_ns, set())
+        kinds.add(kind)
+        if kinds < ({"pose", "sweep"} if self.relays_sweeps else {"pose"}):
+            return False
+        for stamp in [stamp for stamp in self.passed if stamp <= stamp_ns]:
+            del self.passed[stamp]  # earlier ones lack a sweep the player never sent (its wait timed out)
+        return True

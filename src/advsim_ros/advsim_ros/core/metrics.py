@@ -124,8 +124,8 @@ def human_at(human: EgoTrajectory, query_ns: npt.NDArray[np.int64]) -> tuple[Flo
     return interpolate_trajectory(human.stamps_ns, human.xy, human.yaws, query_ns)
 
 
-def to_ego_frame(points_xy: FloatArray, ego_xy: FloatArray, ego_yaw: float) -> FloatArray:
-    """(..., 2) world points in the frame of an ego pose (x forward, y left) [m]."""
+def to_ego_frame(points_xy: FloatArray, ego_xy: FloatArray, ego_yaw: float | FloatArray) -> FloatArray:
+    """(..., 2) world points in the frame of an ego pose (x forward, y left) [m]; poses may be one per point."""
     offset = points_xy - ego_xy
     cos, sin = np.cos(ego_yaw), np.sin(ego_yaw)
     return np.stack([cos * offset[..., 0] + sin * offset[..., 1], -sin * offset[..., 0] + cos * offset[..., 1]], -1)

@@ -24,6 +24,8 @@ import numpy as np
 
 from advsim_ros.adapters.plans import PlanarTransform, frame_transform, geodetic_of
 from advsim_ros.adapters.profile import StackProfile
+from advsim_ros.core.geometry import wrap_angle
+from advsim_ros.core.metrics import to_ego_frame
 from advsim_ros.core.types import FloatArray, IntArray, Plan, Scenario, ScenarioError
 
 ROUTE_TOPIC = "/route"
@@ -61,16 +63,9 @@ def route_of(scenario: Scenario, window_start: int, profile: StackProfile | None
             raise ScenarioError("the profile's plans are in a frame known at run time only (/tf): export without it")
         transform = frame_transform(plan, profile.inputs.pose.datum, world_xy[0])
         frame_id = plan.frame_id or world_frame
-    xy, yaws = _into(transform, world_xy, world_yaws)
+    xy = to_ego_frame(world_xy, np.array([transform.x, transform.y]), transform.yaw)  # world_T_frame inverted
+    yaws = np.asarray(wrap_angle(world_yaws - transform.yaw), dtype=np.float64)
     return Route(frame_id, stamps, xy, yaws, speeds, world_xy)
-
-
-def _into(world_T_frame: PlanarTransform, xy: FloatArray, yaws: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Points and headings of the world frame in the frame (the inverse of PlanarTransform.apply)."""
-    cos, sin = np.cos(world_T_frame.yaw), np.sin(world_T_frame.yaw)
-    shifted = xy - np.array([world_T_frame.x, world_T_frame.y])
-    local = np.column_stack([cos * shifted[:, 0] + sin * shifted[:, 1], -sin * shifted[:, 0] + cos * shifted[:, 1]])
-    return local, np.arctan2(np.sin(yaws - world_T_frame.yaw), np.cos(yaws - world_T_frame.yaw))
 
 
 def format_of(output: Path) -> str:

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from advsim_ros.core.metrics import to_ego_frame
 from advsim_ros.core.types import ActorClass, ActorTrack, BoolArray
 from advsim_ros.labelling.config import GateConfig
 from advsim_ros.labelling.refine import LabelledTrack
@@ -28,11 +29,9 @@ def share_inside(inner: ActorTrack, outer: ActorTrack, margin: float) -> float:
     _, mine, theirs = np.intersect1d(inner.stamps_ns, outer.stamps_ns, assume_unique=True, return_indices=True)
     if mine.size == 0:
         return 0.0
-    offset = inner.centers[mine, :2] - outer.centers[theirs, :2]
-    cos, sin = np.cos(outer.yaws[theirs]), np.sin(outer.yaws[theirs])
-    along, across = cos * offset[:, 0] + sin * offset[:, 1], -sin * offset[:, 0] + cos * offset[:, 1]
-    length, width = float(outer.size[0]), float(outer.size[1])
-    inside: BoolArray = (np.abs(along) <= length / 2.0 + margin) & (np.abs(across) <= width / 2.0 + margin)
+    local = to_ego_frame(inner.centers[mine, :2], outer.centers[theirs, :2], outer.yaws[theirs])
+    half = outer.size[:2] / 2.0 + margin
+    inside: BoolArray = np.all(np.abs(local) <= half, axis=1)
     return float(np.count_nonzero(inside)) / float(inner.stamps_ns.shape[0])
 
 

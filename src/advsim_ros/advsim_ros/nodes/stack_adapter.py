@@ -31,7 +31,7 @@ import numpy as np
 from advsim_ros.adapters import messages as foreign
 from advsim_ros.adapters.plans import contract_plan, ego_before, frame_transform
 from advsim_ros.adapters.profile import StackProfile, load_profile
-from advsim_ros.adapters.timing import PlanBook
+from advsim_ros.adapters.timing import FrameRelay, PlanBook
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import path_msg
@@ -65,8 +65,7 @@ class StackAdapter(GraphNode):
         self.books: dict[str, PlanBook[Any]] = {}  # by contract answer topic: which answer goes with which sweep
         self.answer_publishers: dict[str, Callable[[Any], None]] = {}
         self.sensor_frames: set[str] = set()
-        self.passed_on: dict[int, set[str]] = {}  # timer: frame stamp -> its inputs passed on ("pose", "sweep")
-        self.relays_sweeps = False
+        self.relay = FrameRelay()  # timer: which frames' inputs went to the stack in full
         self.publish_relayed = self.publisher(topics.RELAYED)
         self._warm_up()  # before any endpoint exists: the first query's inputs are not held up by first uses
         renamed = self.profile.renamed()
@@ -97,8 +96,9 @@ class StackAdapter(GraphNode):
             source, target = (spec, theirs) if to_stack else (theirs, spec)
             publish = self._to_stack(target) if to_stack else self.publisher(target)
             if spec is topics.LIDAR:
-                self.relays_sweeps = True
-                publish = self._then_passed_on(publish)
+                self.relay.relays_sweeps = True
+                if self.timing.timer:  # the player paces /clock by the sweeps passed on
+                    publish = self._then_passed_on(publish)
             self.subscribe(source, publish, raw=True, qos=self._read_qos(contract_name, source))
             self.get_logger().info(f"relaying {source.name} -> {target.name} ({spec.msgtype})")
 
@@ -124,7 +124,7 @@ class StackAdapter(GraphNode):
             self.tf_static_spec = dataclasses.replace(topics.TF_STATIC, name=tf_static_name)
             self.tf_static_publishers: list[Any] = []  # latched: kept alive
             self.subscribe(topics.LIDAR, self.on_sweep, raw=True)
-            self.relays_sweeps = True
+            self.relay.relays_sweeps = True
             frame = f" in frame {lidar.frame_id}" if lidar.frame_id else ""
             self.get_logger().info(f"LiDAR: {topics.LIDAR.name} -> {', '.join(targets)}{frame}")
 
@@ -170,16 +170,8 @@ class StackAdapter(GraphNode):
         """Timer-driven stack: once a frame's pose and sweep went to the stack, tell the player, which moves
         /clock to the frame only then. Publishing is synchronous and a process's shared-memory port is read
         in order, so the stack has them before that /clock: a timer firing on it sees this frame's inputs."""
-        if not self.timing.timer:
-            return
-        kinds = self.passed_on.setdefault(stamp_ns, set())
-        kinds.add(kind)
-        if kinds < ({"pose", "sweep"} if self.relays_sweeps else {"pose"}):
-            return
-        del self.passed_on[stamp_ns]
-        for stale in [stamp for stamp in self.passed_on if stamp < stamp_ns]:
-            del self.passed_on[stale]  # a sweep the player never sent (its wait for this frame timed out)
-        self.publish_relayed(codec.header_msg(stamp_ns, ""))
+        if self.timing.timer and self.relay.passed_on(stamp_ns, kind):
+            self.publish_relayed(codec.header_msg(stamp_ns, ""))
 
     def on_tf(self, raw: bytes) -> None:
         self.tf_edges.update(transforms_of(codec.decode(raw, names.TF_MESSAGE)))
