@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.core.search import ALGORITHM_NAMES, default_config, make_search
-from advsim_ros.core.search.bo import BoConfig
+from advsim_ros.core.search.bo_config import BoConfig
 from advsim_ros.core.search.synthetic import TEST_FUNCTION_NAMES, best_values, make_test_function
 
 DIMENSIONS = (12, 24)  # one and two perturbed actors

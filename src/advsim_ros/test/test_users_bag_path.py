@@ -54,7 +54,7 @@ def test_a_users_unlabelled_drive_goes_from_label_to_a_replayed_finding_with_the
         ("curate", str(labelled)),
         ("attack", str(labelled), "--stack", "reference", "--algo", "random", "--queries", "3", "--reruns", "1",
          "--actors", "1", "-o", str(out)),
-        ("replay", str(out / "adversarial"), "--stack", "reference", "--check", "--runs", "2",
+        ("replay", str(out / "adversarial"), "--stack", "reference", "--check", "--runs", "2", "--no-visuals",
          "-o", str(tmp_path / "r")),
         ("report", str(out)),
     ]  # fmt: skip
@@ -68,6 +68,9 @@ def test_a_users_unlabelled_drive_goes_from_label_to_a_replayed_finding_with_the
     summary = json.loads((out / "summary.json").read_text())
     assert {query["score"]["status"] for query in summary["queries"]} == {"ok"}
     assert (out / "report.html").is_file()
+    # the attack on a window of the 8 s log re-simulated from the window's 60 frames, as on the window's own bag
+    assert "keeping 10 of 60 sweeps" in (out / "run" / "logs" / "lidar_resim.log").read_text()
+    assert not (tmp_path / "r" / "report.html").exists() and not (tmp_path / "r" / "bev.gif").exists()  # --no-visuals
     losses = json.loads((tmp_path / "r" / "summary.json").read_text())["replay"]["adversarial_losses"]
     assert len(losses) == 2
     assert len(set(losses)) == 1  # and --check's exit 0: the bag's recorded score, run after run

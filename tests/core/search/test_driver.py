@@ -11,7 +11,8 @@ import pytest
 
 from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.search import SearchConfig, make_search
-from advsim_ros.core.search.bo import BayesianOptimization, BoConfig
+from advsim_ros.core.search.bo import BayesianOptimization
+from advsim_ros.core.search.bo_config import BoConfig
 from advsim_ros.core.search.driver import DriverConfig, drive_search
 from advsim_ros.core.types import Perturbation
 

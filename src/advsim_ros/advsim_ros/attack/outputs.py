@@ -36,7 +36,6 @@ from advsim_ros.contract.scenario import cloud_msg
 from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.atomic import write_json_atomically
-from advsim_ros.core.curation import crop_frames
 from advsim_ros.core.drivable import DrivableConfig
 from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.core.lidar.config import ResimConfig
@@ -104,9 +103,12 @@ def write_outputs(
         "ros_domain_id": domain_id,
         "outputs": {"journal": str(journal.path), "bev": str(out_dir / "bev.png")},
     }
-    scenario = read_scenario_bag(checked.bag, config=checked.bag_config, load_sweeps=True)
-    frames = window.frame_indices(scenario.num_frames)
-    adversarial = crop_frames(scenario, frames.start, frames.stop - 1)
+    frames = window.frame_indices(checked.scenario.num_frames)
+    stamps = checked.scenario.frame_stamps_ns
+    scenario = read_scenario_bag(
+        checked.bag, config=checked.bag_config, sweeps_between=(int(stamps[frames.start]), int(stamps[frames.stop - 1]))
+    )  # the log with the window's sweeps: the only ones re-simulated and drawn
+    adversarial = original = window.crop(scenario)
     if options.replay_only:
         summary["replay"] = _replay_runs(records)
         recorded_perturbation = recorded_message(checked.bag, topics.PERTURBATION, perturbation_from_msg)
@@ -134,7 +136,7 @@ def write_outputs(
     if options.visual_report and summary["outputs"].get("adversarial_bag"):
         from advsim_ros.viz.outputs import write_viz_outputs
 
-        summary["outputs"].update(write_viz_outputs(out_dir, summary))
+        summary["outputs"].update(write_viz_outputs(out_dir, summary, original=original))
         write_json_atomically(out_dir / "summary.json", summary)
     return summary
 
@@ -160,29 +162,29 @@ def _write_adversarial_bag(
     """The recorded query's window as a scenario bag; whether its sweeps digest to what the stack received."""
     window = checked.window
     frames = window.frame_indices(scenario.num_frames)
+    cropped = window.crop(scenario)  # as lidar_resim: the model of the window's frames
     resim_parameters = checked.parameters["lidar_resim"]
     seed = int(resim_parameters.get("seed", 0))
     cache = Path(str(resim_parameters.get("cache_dir") or cache_root() / "resim"))
     model = None
     if recorded.tracks:
         model = ResimModel.build(
-            scenario, cache_dir=cache, config=section(resim_parameters, "resim", ResimConfig, "resim")
+            cropped, cache_dir=cache, config=section(resim_parameters, "resim", ResimConfig, "resim")
         )
     bag = checked.bag_config
     odometry = odometry_msgs(scenario.ego, bag.world_frame, bag.ego_frame)
-    sweeps_by_stamp = {sweep.stamp_ns: sweep for sweep in scenario.sweeps}
+    sweeps_by_stamp = {sweep.stamp_ns: sweep for sweep in cropped.sweeps}
     digest = InputDigest()
     sweeps = []
-    for index in frames[: window.history_frames]:
-        stamp = int(scenario.frame_stamps_ns[index])
+    for index in range(window.history_frames):
+        stamp = int(cropped.frame_stamps_ns[index])
         logged = sweeps_by_stamp[stamp]
-        pose = scenario.ego.poses[index]
-        points = query_sweep(model, scenario, logged, pose, recorded.tracks, seed)
-        sweep = Sweep(stamp, logged.frame_id, points, pose @ scenario.ego_T_sensor)
-        digest.frame(stamp, codec.encode(odometry[index]), pose)
+        pose = cropped.ego.poses[index]
+        points = query_sweep(model, cropped, logged, pose, recorded.tracks, seed)
+        sweep = Sweep(stamp, logged.frame_id, points, pose @ cropped.ego_T_sensor)
+        digest.frame(stamp, codec.encode(odometry[frames.start + index]), pose)
         digest.sweep(codec.encode(cloud_msg(sweep)))
         sweeps.append(sweep)
-    cropped = crop_frames(scenario, frames.start, frames.stop - 1)
     adversarial = Scenario(
         scenario_id=f"{cropped.scenario_id}/adversarial",
         frame_stamps_ns=cropped.frame_stamps_ns,

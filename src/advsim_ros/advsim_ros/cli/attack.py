@@ -27,6 +27,9 @@ from advsim_ros.io.synthetic_families import FAMILY_NAMES
 DEMO_FAMILY, DEMO_SEED = "lead_brake", 1
 
 
+NO_VISUALS_HELP = "leave out bev.gif and report.html (seconds per attack; `advsim report OUTDIR` draws them later)"
+
+
 def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     attack = subparsers.add_parser("attack", help="attack a stack on a scenario bag: search, bag out, summary, BEV")
     attack.add_argument("bag", type=Path, help="scenario bag (rosbag2 folder), e.g. from `advsim convert`")
@@ -52,6 +55,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
         help="evaluate up to N queries of a batch at once, each on its own graph and stack (default 1; the scores "
         "are the same; the algorithm's batch decides how many run together: docs/attack.md)",
     )
+    attack.add_argument("--no-visuals", action="store_true", help=NO_VISUALS_HELP)
     attack.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes the run)")
     attack.set_defaults(run=_run_attack)
 
@@ -63,6 +67,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
         "--check", action="store_true", help="exit 3 unless every run reproduces the recorded score (regression test)"
     )
     replay.add_argument("--runs", type=int, default=1, help="how many times to replay (default 1)")
+    replay.add_argument("--no-visuals", action="store_true", help=NO_VISUALS_HELP)
     replay.add_argument("--tolerance", type=float, default=1e-6, help="--check: allowed |L_adv difference|")
     replay.set_defaults(run=_run_replay)
 
@@ -235,6 +240,7 @@ def _run_attack(args: argparse.Namespace) -> int:
         loop=args.loop,
         lanes=args.lanes,
         reactive_actors=args.reactive_actors,
+        visual_report=not args.no_visuals,
     )
     return _attack_and_report(options)
 
@@ -297,6 +303,7 @@ def _run_replay(args: argparse.Namespace) -> int:
         parameter_overrides=parameter_overrides(args.param),
         loop=args.loop,
         reactive_actors=args.reactive_actors,
+        visual_report=not args.no_visuals,
     )
     recorded = recorded_score(args.bag)
     try:

@@ -13,7 +13,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from advsim_ros.core.types import ScenarioError
+from advsim_ros.core.curation import crop_frames
+from advsim_ros.core.types import Scenario, ScenarioError
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,15 @@ class WindowConfig:
                 f"window frames {self.window_start_frame}..{end - 1} need {end} frames, the log has {num_log_frames}"
             )
         return range(self.window_start_frame, end)
+
+    def crop(self, scenario: Scenario) -> Scenario:
+        """The window's frames of a log, renumbered from 0: what an attack on the window's own bag reads.
+
+        The re-simulation model is built from these (its sweeps, its tracks), so an attack on a window
+        of a whole log scores as an attack on that window cut out into a bag of its own, and costs as much.
+        """
+        frames = self.frame_indices(scenario.num_frames)
+        return crop_frames(scenario, frames.start, frames.stop - 1)
 
     def clock(self, frame_stamps_ns: Sequence[int]) -> EpisodeClock:
         """The episode clock of this window over a log with these frame stamps [ns]."""

@@ -41,13 +41,16 @@ class LidarResim(ScenarioNode):
         super().__init__("lidar_resim")
         self.config = declare_config(self, ResimNodeConfig)
         resim_config = declare_config(self, ResimConfig, "resim.")
-        scenario, self.clock = self.load_scenario(load_sweeps=True)  # every sweep: the model is built from them all
-        history = self.window.frame_indices(scenario.num_frames)[: self.window.history_frames]
+        log, self.clock = self.load_scenario(load_sweeps=True)
+        scenario = self.window.crop(log)  # the model and the sweeps of the window's frames only: requests are
+        del log  # numbered in the log, the cropped scenario from the window's first frame (self.first_frame)
+        self.first_frame = self.window.window_start_frame
+        history = range(self.window.history_frames)
         logged = {sweep.stamp_ns for sweep in scenario.sweeps}
         # open loop asks for the history frames only; closed loop may re-simulate any frame of the
-        # window, and renders with a calibration taken from the log's sweeps (novel_view): all are kept
+        # window, and renders with a calibration taken from the window's sweeps (novel_view): all are kept
         stamps = {int(scenario.frame_stamps_ns[i]) for i in history} if self.config.history_sweeps_only else logged
-        missing = [i for i in history if int(scenario.frame_stamps_ns[i]) not in logged]
+        missing = [self.first_frame + i for i in history if int(scenario.frame_stamps_ns[i]) not in logged]
         if missing:
             raise ScenarioError(f"scenario {scenario.scenario_id}: no LiDAR sweep at history frames {missing}")
         model: ResimModel | None = None
@@ -89,13 +92,14 @@ class LidarResim(ScenarioNode):
         ready = [request for request in self.waiting if request.query_id in self.tracks]
         self.waiting = [request for request in self.waiting if request.query_id not in self.tracks]
         for request in ready:
-            stamp = int(self.scenario.frame_stamps_ns[request.log_frame])
+            frame = request.log_frame - self.first_frame
+            stamp = int(self.scenario.frame_stamps_ns[frame])
             logged = self.sweeps.get(stamp)
             moved = self.tracks[request.query_id]
             if request.reacted_actors:  # reactive actors away from their tracks: one state each, at this frame
                 reacted = (track.shifted(stamp - request.sim_stamp_ns) for track in request.reacted_actors)
                 moved = with_overrides(moved, tuple(track.to_actor_track() for track in reacted))
-            logged_pose = self.scenario.ego.poses[request.log_frame]
+            logged_pose = self.scenario.ego.poses[frame]
             config = self.config
             if logged is None or moved_away(
                 request.world_T_ego, logged_pose, config.render_distance, config.render_yaw

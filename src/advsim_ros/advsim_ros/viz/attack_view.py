@@ -20,7 +20,6 @@ import numpy as np
 from advsim_ros.contract import names, topics
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.contract.protocol import perturbation_from_msg
-from advsim_ros.core.curation import crop_frames
 from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.journal import read_records
 from advsim_ros.core.metrics import MetricsConfig
@@ -84,8 +83,11 @@ class AttackView:
         return int(self.adversarial.frame_stamps_ns[self.decision_index])
 
 
-def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView:
-    """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path)."""
+def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path, original: Scenario | None = None) -> AttackView:
+    """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path).
+
+    ``original``: the attacked window of the source log, when the caller has it (else read from the source bag).
+    """
     values = load_summary(summary)
     bag = Path(bag)
     adversarial = read_scenario_bag(bag, load_sweeps=True)
@@ -101,7 +103,8 @@ def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView
             "not the adversarial bag of this summary"
         )
     perturbed = tuple(values.get("perturbed_actors") or ()) or bag_perturbed_ids(bag)
-    original = _original_window(Path(scenario["bag"]), window, adversarial)
+    if original is None or not np.array_equal(original.frame_stamps_ns, adversarial.frame_stamps_ns):
+        original = _original_window(Path(scenario["bag"]), window, adversarial)
     original_plan = _original_plan(values)
     adversarial_plan = bag_plan(bag)
     decision = window.decision_index
@@ -129,8 +132,7 @@ def _original_window(source: Path, window: WindowConfig, adversarial: Scenario) 
     if not (source / "metadata.yaml").is_file():
         return None
     log = read_scenario_bag(source, load_sweeps=True)
-    frames = window.frame_indices(log.num_frames)
-    cropped = crop_frames(log, frames.start, frames.stop - 1)
+    cropped = window.crop(log)
     if not np.array_equal(cropped.frame_stamps_ns, adversarial.frame_stamps_ns):
         return None  # the source bag was replaced by another log
     return cropped

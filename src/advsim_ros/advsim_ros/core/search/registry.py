@@ -22,30 +22,41 @@ from advsim_ros.core.search.driver import DriverConfig
 ALGORITHM_NAMES = ("bo", "ga", "rs", "nes", "bandit", "random")
 SEARCH_NODE_NAME = "search"  # node whose parameters params/search.yaml holds
 
-# name -> (module, algorithm class, config class)
-_ENTRIES: dict[str, tuple[str, str, str]] = {
-    "bo": ("advsim_ros.core.search.bo", "BayesianOptimization", "BoConfig"),
-    "ga": ("advsim_ros.core.search.ga", "GeneticAlgorithm", "GaConfig"),
-    "rs": ("advsim_ros.core.search.simba", "Simba", "SimbaConfig"),
-    "nes": ("advsim_ros.core.search.nes", "Nes", "NesConfig"),
-    "bandit": ("advsim_ros.core.search.bandit_td", "BanditTd", "BanditConfig"),
-    "random": ("advsim_ros.core.search.random_search", "RandomSearch", "RandomSearchConfig"),
+# name -> (module.algorithm class, module.config class); a config lives apart from a heavy algorithm
+# (bo: torch, BoTorch) so that reading and checking settings does not import it
+_ENTRIES: dict[str, tuple[str, str]] = {
+    "bo": ("advsim_ros.core.search.bo.BayesianOptimization", "advsim_ros.core.search.bo_config.BoConfig"),
+    "ga": ("advsim_ros.core.search.ga.GeneticAlgorithm", "advsim_ros.core.search.ga.GaConfig"),
+    "rs": ("advsim_ros.core.search.simba.Simba", "advsim_ros.core.search.simba.SimbaConfig"),
+    "nes": ("advsim_ros.core.search.nes.Nes", "advsim_ros.core.search.nes.NesConfig"),
+    "bandit": ("advsim_ros.core.search.bandit_td.BanditTd", "advsim_ros.core.search.bandit_td.BanditConfig"),
+    "random": (
+        "advsim_ros.core.search.random_search.RandomSearch",
+        "advsim_ros.core.search.random_search.RandomSearchConfig",
+    ),
 }
 
 
-def _entry(name: str) -> tuple[type[SearchAlgorithm[Any]], type[SearchConfig]]:
+def _imported(dotted: str) -> Any:
+    module_name, _, attribute = dotted.rpartition(".")
+    return getattr(importlib.import_module(module_name), attribute)
+
+
+def _checked(name: str) -> tuple[str, str]:
     if name not in _ENTRIES:
         raise SearchError(f"unknown search algorithm {name!r} (known: {', '.join(ALGORITHM_NAMES)})")
-    module_name, algorithm_name, config_name = _ENTRIES[name]
-    module = importlib.import_module(module_name)
-    algorithm: type[SearchAlgorithm[Any]] = getattr(module, algorithm_name)
-    config: type[SearchConfig] = getattr(module, config_name)
-    return algorithm, config
+    return _ENTRIES[name]
+
+
+def _entry(name: str) -> tuple[type[SearchAlgorithm[Any]], type[SearchConfig]]:
+    algorithm: type[SearchAlgorithm[Any]] = _imported(_checked(name)[0])
+    return algorithm, config_type(name)
 
 
 def config_type(name: str) -> type[SearchConfig]:
-    """The frozen config dataclass of algorithm `name`."""
-    return _entry(name)[1]
+    """The frozen config dataclass of algorithm `name` (without importing the algorithm's module)."""
+    config: type[SearchConfig] = _imported(_checked(name)[1])
+    return config
 
 
 def default_config(name: str) -> SearchConfig:

@@ -49,10 +49,17 @@ def _pose(translation: Any, rotation: Any, what: str) -> FloatArray:
         raise BagError(str(error)) from None
 
 
-def read_scenario_bag(path: Path, *, config: BagConfig | None = None, load_sweeps: bool = True) -> Scenario:
+def read_scenario_bag(
+    path: Path,
+    *,
+    config: BagConfig | None = None,
+    load_sweeps: bool = True,
+    sweeps_between: tuple[int, int] | None = None,
+) -> Scenario:
     """The scenario in a bag written by write_scenario_bag, or in a user's bag (topics from ``config``).
 
-    ``load_sweeps=False`` skips decoding the point clouds (the sweeps come back empty).
+    ``load_sweeps=False`` skips decoding the point clouds (the sweeps come back empty);
+    ``sweeps_between=(first, last)`` keeps only the sweeps stamped first..last [ns] (an attack's window).
     Points with a non-finite x, y or z are dropped, their count logged once (a warning).
     Raises BagError naming the bag and the problem: truncated storage, a missing LiDAR
     topic, a PointCloud2 without x/y/z, NaN poses, inconsistent stamps.
@@ -79,9 +86,10 @@ def read_scenario_bag(path: Path, *, config: BagConfig | None = None, load_sweep
         wanted = [c for c in [pose_conn, *optional] if c is not None]
         if lidar is not None and (load_sweeps or not own_bag):  # users' bags take their frames from the sweeps
             wanted.append(lidar)
-        collected = _collect(bag, wanted, config, pose_conn, lidar, keep_points=load_sweeps)
+        kept = (sweeps_between or (-(2**63), 2**63 - 1)) if load_sweeps else None
+        collected = _collect(bag, wanted, config, pose_conn, lidar, kept)
     collected.dropped.report(log, f"bag {path}", lidar.topic)
-    return _assemble(path, collected, config, own_bag, load_sweeps)
+    return _assemble(path, collected, config, own_bag, kept)
 
 
 def _collect(
@@ -90,8 +98,9 @@ def _collect(
     config: BagConfig,
     pose_conn: Connection | None,
     lidar: Connection | None,
-    keep_points: bool,
+    kept: tuple[int, int] | None,
 ) -> _Collected:
+    """Every message the scenario needs; the points of the sweeps stamped within ``kept`` (none: no points)."""
     collected = _Collected()
     for connection, stamp, decoded in bag.messages(wanted):
         topic = connection.topic
@@ -120,8 +129,10 @@ def _collect(
         elif topic == config.info_topic:
             collected.info = decoded
         elif connection is lidar:
-            points = cloud_points(bag, topic, decoded, stamp, collected.dropped) if keep_points else _NO_POINTS
-            collected.clouds.append((stamp_ns(decoded.header.stamp), str(decoded.header.frame_id), points))
+            header_ns = stamp_ns(decoded.header.stamp)
+            wanted_points = kept is not None and kept[0] <= header_ns <= kept[1]
+            points = cloud_points(bag, topic, decoded, stamp, collected.dropped) if wanted_points else _NO_POINTS
+            collected.clouds.append((header_ns, str(decoded.header.frame_id), points))
     return collected
 
 
@@ -133,7 +144,9 @@ def _check_frames(bag: BagReader, topic: str, stamp: int, parent: str, child: st
         )
 
 
-def _assemble(path: Path, collected: _Collected, config: BagConfig, own_bag: bool, load_sweeps: bool) -> Scenario:
+def _assemble(
+    path: Path, collected: _Collected, config: BagConfig, own_bag: bool, kept: tuple[int, int] | None
+) -> Scenario:
     info = None
     if collected.info is not None:
         try:
@@ -175,8 +188,10 @@ def _assemble(path: Path, collected: _Collected, config: BagConfig, own_bag: boo
         ego_T_sensor = np.eye(4)
     frame_index = {stamp: index for index, stamp in enumerate(frames.tolist())}
     sweeps: list[Sweep] = []
-    if load_sweeps:
+    if kept is not None:
         for stamp, frame_id, points in clouds:
+            if not kept[0] <= stamp <= kept[1]:
+                continue
             if stamp not in frame_index:
                 raise BagError(f"bag {path}: sweep at {stamp} ns has no ego pose at that stamp")
             pose = ego_poses[frame_index[stamp]] @ ego_T_sensor
