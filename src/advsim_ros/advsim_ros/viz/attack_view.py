@@ -25,7 +25,7 @@ from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.journal import read_records
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.types import Plan, Scenario, ScenarioError
-from advsim_ros.io.bag import BagReader, read_scenario_bag
+from advsim_ros.io.bag import BagConfig, BagReader, bag_layout_of, read_scenario_bag
 from advsim_ros.viz.markers import first_collision_ns
 
 
@@ -84,12 +84,16 @@ class AttackView:
         return int(self.adversarial.frame_stamps_ns[self.decision_index])
 
 
-def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView:
-    """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path)."""
+def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path, bag_config: BagConfig | None = None) -> AttackView:
+    """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path).
+
+    Both bags are read in ``bag_config``'s layout (--bag-params), else in the one the summary recorded
+    (the attack wrote adversarial/ in its source bag's layout), else in the contract's."""
     values = load_summary(summary)
     bag = Path(bag)
-    adversarial = read_scenario_bag(bag, load_sweeps=True)
     scenario = values["scenario"]
+    layout = bag_config or bag_layout_of(scenario.get("bag_params"), "summary.json scenario.bag_params")
+    adversarial = read_scenario_bag(bag, config=layout, load_sweeps=True)
     window = WindowConfig(
         window_start_frame=int(scenario["window_start_frame"]),
         history_frames=int(scenario["history_frames"]),
@@ -101,7 +105,7 @@ def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView
             "not the adversarial bag of this summary"
         )
     perturbed = tuple(values.get("perturbed_actors") or ()) or bag_perturbed_ids(bag)
-    original = _original_window(Path(scenario["bag"]), window, adversarial)
+    original = _original_window(Path(scenario["bag"]), window, adversarial, layout)
     original_plan = _original_plan(values)
     adversarial_plan = bag_plan(bag)
     decision = window.decision_index
@@ -124,11 +128,13 @@ def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path) -> AttackView
     )
 
 
-def _original_window(source: Path, window: WindowConfig, adversarial: Scenario) -> Scenario | None:
+def _original_window(
+    source: Path, window: WindowConfig, adversarial: Scenario, layout: BagConfig | None
+) -> Scenario | None:
     """The attacked window of the source bag, when it is still there and is the same log."""
     if not (source / "metadata.yaml").is_file():
         return None
-    log = read_scenario_bag(source, load_sweeps=True)
+    log = read_scenario_bag(source, config=layout, load_sweeps=True)
     frames = window.frame_indices(log.num_frames)
     cropped = crop_frames(log, frames.start, frames.stop - 1)
     if not np.array_equal(cropped.frame_stamps_ns, adversarial.frame_stamps_ns):
