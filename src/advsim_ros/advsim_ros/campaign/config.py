@@ -397,7 +397,9 @@ def load_campaign(path: Path, bag_config: BagConfig | None = None) -> Campaign:
     return Campaign(
         path=path,
         # --bag-params counts as part of the configuration (a campaign without it digests as before)
-        digest=hashlib.sha256((text + _layout_text(bag_config)).encode()).hexdigest()[:16],
+        digest=hashlib.sha256(
+            (text + (json.dumps(bag_layout_json(bag_config)) if bag_config else "")).encode()
+        ).hexdigest()[:16],
         scenarios=_scenarios(path, values["scenarios"], bag_config),
         stacks=_stacks(path, values["stacks"]),
         algorithms=_algorithms(path, values["algorithms"]),
@@ -414,10 +416,6 @@ def load_campaign(path: Path, bag_config: BagConfig | None = None) -> Campaign:
         parameters=parameters,
         plan_timeout=float(plan_timeout),
     )
-
-
-def _layout_text(bag_config: BagConfig | None) -> str:
-    return "" if bag_config is None else "\n# --bag-params " + json.dumps(bag_layout_json(bag_config), sort_keys=True)
 
 
 def materialize(campaign: Campaign, logs_dir: Path) -> Campaign:

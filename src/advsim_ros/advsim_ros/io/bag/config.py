@@ -84,8 +84,9 @@ def load_bag_config(path: Path) -> BagConfig:
 # --------------------------------------------------------------------------- --bag-params, one option for all
 
 BAG_PARAMS_HELP = (
-    "the layout of a bag recorded your way: its LiDAR, odometry, tf and track topics, frame names and "
-    "ego-pose source (a params/bag.yaml-shaped file; default: the contract's, docs/data.md)"
+    "the layout of a bag recorded with names of its own: LiDAR, odometry, tf and track topics, frame names, "
+    "ego-pose source (a file shaped like params/bag.yaml, docs/data.md); without it the contract's names "
+    "(report: the layout its summary.json recorded)"
 )
 
 
