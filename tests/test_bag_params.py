@@ -22,11 +22,12 @@ import yaml
 from advsim_ros.attack.checks import preflight
 from advsim_ros.attack.options import AttackOptions, StackSpec
 from advsim_ros.attack.run import _base_overrides
-from advsim_ros.campaign.config import CampaignError, expand, load_campaign
+from advsim_ros.campaign.config import CampaignError, FailureRule, expand, load_campaign
+from advsim_ros.campaign.suite import export_suite, read_index
 from advsim_ros.cli import build_parser, main
 from advsim_ros.core.curation import crop_frames
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.io.bag import BagConfig, read_scenario_bag
+from advsim_ros.io.bag import BagConfig, bag_layout_json, bag_layout_of, read_scenario_bag
 from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
 
 HINT = "describe its layout with --bag-params FILE.yaml"
@@ -189,3 +190,16 @@ def test_a_campaign_reads_its_bags_in_the_layout_its_entry_or_bag_params_gives(
     config.write_text(yaml.safe_dump(values))
     with pytest.raises(CampaignError, match=r"scenarios\[0\]\.bag_params: only for bag and bags"):
         load_campaign(config)
+
+
+def test_a_campaign_suite_keeps_the_layout_of_its_scenarios_for_regress(
+    drive: tuple[Path, Path], recorded_your_way: Any, tmp_path: Path
+) -> None:
+    bag, _ = drive
+    row = {"attack": "my_drive-w0000", "stack": "reference", "scenario": "my_drive", "window_start": 0,
+           "algorithm": "random"}  # fmt: skip
+    entry = {"row": row, "bag": str(bag), "adversarial": {"collision_5s": 1.0, "adversarial_loss": 2.0},
+             "bag_params": bag_layout_json(recorded_your_way.layout)}  # fmt: skip
+    suite = export_suite(tmp_path, [entry], FailureRule(exclude=()))
+    _, (scenario,) = read_index(suite)
+    assert bag_layout_of(scenario["bag_params"], "index") == recorded_your_way.layout  # what regress replays with

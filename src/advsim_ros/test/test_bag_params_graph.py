@@ -5,7 +5,7 @@ RecordedYourWay: /velodyne_points in `velodyne`, /vehicle/odom from `odom` to `b
 /perception/tracks; no /clock, /tf or ScenarioInfo). The scenario player, lidar_resim and scorer read it
 in that layout, the stack gets its frames, the adversarial bag keeps it (so `ros2 bag play` feeds the
 user's stack its own topics), the report finds it in summary.json, and `advsim replay` takes the same
-`--bag-params` (and says how to describe the bag without it). About 50 s with the re-simulation model
+`--bag-params` (and says how to describe the bag without it). About 40 s with the re-simulation model
 cached (the demo's scene), 90 s without.
 """
 
