@@ -5,11 +5,13 @@ Tests that need the data skip with a message naming the missing folder when it i
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 
 from advsim_ros.core.types import Scenario
+from advsim_ros.io.bag import BagConfig
 from advsim_ros.io.kitti import load_kitti_tracking
 
 SHARED_DATA = Path(__file__).resolve().parent / "../shared/data"
@@ -42,3 +44,64 @@ def av2_logs(shared_data: Path) -> list[Path]:
 def kitti_scenario(kitti_root: Path) -> Scenario:
     """KITTI tracking 0000 (the first run unpacks the Velodyne archive into the cache, ~15 s)."""
     return load_kitti_tracking(kitti_root, "0000")
+
+
+class RecordedYourWay:
+    """A scenario written as a user's recorder writes a drive, in a layout of its own: the LiDAR on
+    /velodyne_points in frame `velodyne` (log times 30 ms after the stamps), odometry on /vehicle/odom from
+    `odom` to `base_footprint`, tracks on /perception/tracks in `odom`, the mount on /tf_static; no /clock,
+    no /tf, no ScenarioInfo. ``params`` writes the --bag-params file that describes it."""
+
+    layout = BagConfig(
+        lidar_topic="/velodyne_points",
+        odom_topic="/vehicle/odom",
+        tracks_topic="/perception/tracks",
+        world_frame="odom",
+        ego_frame="base_footprint",
+    )
+    params_text = (
+        "/**:\n  ros__parameters:\n    bag:\n      lidar_topic: /velodyne_points\n      odom_topic: /vehicle/odom\n"
+        "      tracks_topic: /perception/tracks\n      world_frame: odom\n      ego_frame: base_footprint\n"
+    )
+
+    def params(self, path: Path) -> Path:
+        path.write_text(self.params_text, encoding="utf-8")
+        return path
+
+    def write(self, scenario: Scenario, path: Path) -> Path:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        from advsim_ros.contract import codec, names
+        from advsim_ros.contract.scenario import cloud_msg
+        from advsim_ros.contract.spatial import odometry_msgs, tf_message
+        from advsim_ros.contract.tracks import TrackRecord, track_array_msg
+
+        layout, store = self.layout, codec.typestore()
+        per_frame: dict[int, list[TrackRecord]] = {int(stamp): [] for stamp in scenario.frame_stamps_ns}
+        for actor in scenario.actors:
+            record = TrackRecord.from_actor_track(actor)
+            for index, stamp in enumerate(actor.stamps_ns.tolist()):
+                per_frame[stamp].append(record.state(index))
+        odometry = odometry_msgs(scenario.ego, layout.world_frame, layout.ego_frame)
+        with Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP) as writer:
+            static = writer.add_connection("/tf_static", names.TF_MESSAGE, typestore=store)
+            odom = writer.add_connection(layout.odom_topic, names.ODOMETRY, typestore=store)
+            tracks = writer.add_connection(layout.tracks_topic, names.ACTOR_TRACK_ARRAY, typestore=store)
+            lidar = writer.add_connection(layout.lidar_topic, names.POINTCLOUD2, typestore=store)
+            first = int(scenario.frame_stamps_ns[0])
+            mount = tf_message(first, layout.ego_frame, "velodyne", scenario.ego_T_sensor)
+            writer.write(static, first, codec.encode(mount))
+            for index, stamp in enumerate(scenario.frame_stamps_ns.tolist()):
+                writer.write(odom, stamp, codec.encode(odometry[index]))
+                arrays = track_array_msg(per_frame[stamp], stamp, layout.world_frame)
+                writer.write(tracks, stamp, codec.encode(arrays))
+            for sweep in scenario.sweeps:
+                cloud = cloud_msg(dataclasses.replace(sweep, frame_id="velodyne"))
+                writer.write(lidar, sweep.stamp_ns + 30_000_000, codec.encode(cloud))
+        return path
+
+
+@pytest.fixture(scope="session")
+def recorded_your_way() -> RecordedYourWay:
+    """Writes scenarios as a user records drives, in a layout of its own (see RecordedYourWay)."""
+    return RecordedYourWay()

@@ -45,6 +45,7 @@ _STACK = (
     Argument("plan_timeout", "--plan-timeout", "10.0", "longest wait for a plan per frame [s]"),
     Argument("param", "--param", "", "NODE.KEY=VALUE node parameters, space-separated (shell quoting)", "list"),
     Argument("connect_timeout", "--connect-timeout", "120.0", "longest wait for the stack to connect [s]"),
+    Argument("bag_params", "--bag-params", "", "the bag's layout FILE.yaml (topics, frames; docs/data.md)"),
 )
 
 ATTACK = (

@@ -13,6 +13,7 @@ from typing import Any
 from advsim_ros.adapters.profile import ProcessProfile, StackProfile, profile_from_mapping
 from advsim_ros.contract import topics
 from advsim_ros.core.types import ScenarioError
+from advsim_ros.io.bag import BagConfig
 from advsim_ros.ros.launcher import NodeSpec, python_module_command
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
@@ -249,6 +250,7 @@ class AttackOptions:
     loop: str = "open"  # open: the decision plan is scored (the paper); closed: the ego drives the stack's plans
     lanes: int = 1  # evaluation graphs run side by side, each with its own stack; never changes a score
     reactive_actors: bool = False  # closed loop: moving vehicles react to the ego (IDM along their paths)
+    bag_config: BagConfig | None = None  # --bag-params: the bag's topics and frames (None: params/bag.yaml's)
 
     def __post_init__(self) -> None:
         if self.queries < 1 and not self.replay_only:

@@ -43,7 +43,7 @@ from advsim_ros.core.lidar.query import query_sweep
 from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.types import DrivableArea, Perturbation, Scenario, Sweep, replace_actors
-from advsim_ros.io.bag import BagReader, read_scenario_bag, write_scenario_bag
+from advsim_ros.io.bag import BagReader, bag_layout_json, read_scenario_bag, write_scenario_bag
 from advsim_ros.io.cache import cache_root
 from advsim_ros.io.drivable_cache import bag_drivable_area
 
@@ -85,6 +85,7 @@ def write_outputs(
             "window_start_frame": window.window_start_frame,
             "history_frames": window.history_frames,
             "future_frames": window.future_frames,
+            "bag_params": bag_layout_json(checked.bag_config),  # the layout of the bag and of adversarial/
         },
         "stack": {"name": options.stack.name, "command": list(options.stack.command)},
         "search": {

@@ -37,6 +37,7 @@ from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
 from advsim_ros.core.search.registry import config_from_params
+from advsim_ros.io.bag import bag_layout_json
 from advsim_ros.ros.launcher import (
     Launcher,
     NodeSpec,
@@ -92,6 +93,8 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
             }
         },
     }
+    if options.bag_config is not None:  # --bag-params: every node reads and publishes the bag's layout
+        overrides["/**"]["ros__parameters"]["bag"] = bag_layout_json(options.bag_config)
     if not options.replay_only:
         overrides["/perturber"] = {"ros__parameters": {"num_actors": options.actors}}
         overrides["/search"] = {
@@ -171,6 +174,8 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
             "rerun_top": options.rerun_top,
             "replay_runs": options.replay_runs,
             "parameters": params.hexdigest(),
+            # the layout --bag-params gave (absent without: journals from before resume)
+            **({"bag_params": bag_layout_json(options.bag_config)} if options.bag_config is not None else {}),
         }
     )
 

@@ -5,6 +5,7 @@
         windows: {curated: 3}       # the 3 curated windows of highest SDV collision rate (default 1)
       - bags: logs/                 # every scenario bag in a folder
         windows: all                # every candidate window (params/curation.yaml step)
+        bag_params: my_bag.yaml     # bags recorded your way: their layout (bag | bags; default `--bag-params`)
       - synthetic: {seeds: [0, 1]}  # synthetic street logs, written into OUTDIR/logs
         windows: {starts: [0]}      # explicit first frames
       - synthetic: {seed_range: [0, 50], families: [lead_brake, cut_in, crossing]}  # scene families
@@ -45,12 +46,13 @@ from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.objective import PRESET_NAMES
 from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.core.types import ScenarioError
+from advsim_ros.io.bag import BagConfig, bag_layout_json, bag_layout_of, load_bag_config
 
 TOP_KEYS = (
     "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "loops", "reactive_actors", "reruns",
     "transfer", "failure", "parameters", "plan_timeout",
 )  # fmt: skip
-SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows")
+SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows", "bag_params")
 STACK_KEYS = ("name", "command", "remap", "remap_mode", "params")
 FAILURE_KEYS = ("collision", "adversarial_loss_above", "exclude")
 # what keeps a found collision from counting as the stack's failure (attack.controls finding's reasons)
@@ -71,6 +73,7 @@ class ScenarioSource:
     windows: Any  # "curated" | "all" | {"curated": k} | {"starts": [...]}
     synthetic_seed: int | None = None  # written into OUTDIR/logs before the attacks when not None
     synthetic_family: str = "street"  # the synthetic log's scene family (io.synthetic_families)
+    bag_config: BagConfig | None = None  # the bag's layout (bag_params, --bag-params); None: the contract's
 
 
 @dataclass(frozen=True)
@@ -119,6 +122,7 @@ class AttackPlan:
     parameters: Mapping[str, Any] = field(default_factory=dict)
     loop: str = "open"  # open (the paper's) or closed (the ego drives the stack's plans)
     reactive_actors: bool = False  # closed loop: moving vehicles react to the ego
+    bag_params: Mapping[str, Any] | None = None  # the bag's layout (bag_layout_json); None: the contract's
 
     def identity(self) -> dict[str, Any]:
         """The IDENTITY columns of results.csv (and the bag)."""
@@ -145,6 +149,7 @@ class AttackPlan:
             algorithm=self.algorithm, queries=self.budget, actors=self.actors, seed=self.seed,
             window_start_frame=self.window_start, plan_timeout=self.plan_timeout, reruns=self.reruns,
             parameter_overrides=overrides, visual_report=False, loop=self.loop, reactive_actors=self.reactive_actors,
+            bag_config=bag_layout_of(self.bag_params, f"attack {self.key} bag_params"),
         )  # fmt: skip
 
 
@@ -292,7 +297,19 @@ def scene_family(name: str) -> str:
     return found.group(1) or "street"
 
 
-def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
+def _bag_layout(path: Path, where: str, entry: Mapping[str, Any], default: BagConfig | None) -> BagConfig | None:
+    """A bag | bags entry's layout: its own ``bag_params`` file (relative to the config), else --bag-params."""
+    if "bag_params" not in entry:
+        return default
+    if "synthetic" in entry:
+        raise _fail(path, f"{where}.bag_params", "only for bag and bags (synthetic logs have the contract's layout)")
+    try:
+        return load_bag_config(path.parent / str(entry["bag_params"]))
+    except ScenarioError as error:
+        raise _fail(path, f"{where}.bag_params", str(error)) from None
+
+
+def _scenarios(path: Path, value: Any, bag_config: BagConfig | None = None) -> tuple[ScenarioSource, ...]:
     if not isinstance(value, list) or not value:
         raise _fail(path, "scenarios", "expected a non-empty list of {bag | bags | synthetic, windows}")
     sources: list[ScenarioSource] = []
@@ -305,10 +322,11 @@ def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
         if len(kinds) != 1:
             raise _fail(path, where, "needs exactly one of bag, bags, synthetic")
         windows = _windows(path, f"{where}.windows", entry.get("windows", "curated"))
+        layout = _bag_layout(path, where, entry, bag_config)
         kind = kinds[0]
         if kind == "bag":
             bag = _bag_folder(path, f"{where}.bag", path.parent / str(entry["bag"]))
-            sources.append(ScenarioSource(bag.name, bag, windows))
+            sources.append(ScenarioSource(bag.name, bag, windows, bag_config=layout))
         elif kind == "bags":
             folder = path.parent / str(entry["bags"])
             if not folder.is_dir():
@@ -316,7 +334,7 @@ def _scenarios(path: Path, value: Any) -> tuple[ScenarioSource, ...]:
             bags = sorted(p.resolve() for p in folder.iterdir() if (p / "metadata.yaml").is_file())
             if not bags:
                 raise _fail(path, f"{where}.bags", f"{folder} holds no rosbag2 folder")
-            sources.extend(ScenarioSource(bag.name, bag, windows) for bag in bags)
+            sources.extend(ScenarioSource(bag.name, bag, windows, bag_config=layout) for bag in bags)
         else:
             sources.extend(_synthetic_sources(path, where, entry["synthetic"], windows))
     names = [source.name for source in sources]
@@ -333,8 +351,9 @@ def _exclusions(path: Path, failure: Mapping[str, Any]) -> tuple[str, ...]:
     return tuple(exclude)
 
 
-def load_campaign(path: Path) -> Campaign:
-    """Read and check a campaign YAML (CampaignError naming the first problem)."""
+def load_campaign(path: Path, bag_config: BagConfig | None = None) -> Campaign:
+    """Read and check a campaign YAML (CampaignError naming the first problem); ``bag_config`` (--bag-params) is
+    the layout of its bag | bags entries that name no bag_params of their own."""
     path = Path(path).resolve()
     try:
         text = path.read_text(encoding="utf-8")
@@ -377,8 +396,11 @@ def load_campaign(path: Path) -> Campaign:
         raise _fail(path, "plan_timeout", f"expected a positive number of seconds, got {plan_timeout!r}")
     return Campaign(
         path=path,
-        digest=hashlib.sha256(text.encode()).hexdigest()[:16],
-        scenarios=_scenarios(path, values["scenarios"]),
+        # --bag-params counts as part of the configuration (a campaign without it digests as before)
+        digest=hashlib.sha256(
+            (text + (json.dumps(bag_layout_json(bag_config)) if bag_config else "")).encode()
+        ).hexdigest()[:16],
+        scenarios=_scenarios(path, values["scenarios"], bag_config),
         stacks=_stacks(path, values["stacks"]),
         algorithms=_algorithms(path, values["algorithms"]),
         actors=_int_list(path, "actors", values.get("actors", [1]), 1),
@@ -417,7 +439,7 @@ def window_starts(campaign: Campaign, source: ScenarioSource, params_dir: Path |
     from advsim_ros.io.bag import read_scenario_bag
 
     params = params_dir or default_params_dir()
-    scenario = read_scenario_bag(source.bag, load_sweeps=False)
+    scenario = read_scenario_bag(source.bag, config=source.bag_config, load_sweeps=False)
     where = f"scenarios[{source.name}].windows"
     if isinstance(source.windows, dict) and "starts" in source.windows:
         for start in source.windows["starts"]:
@@ -470,6 +492,7 @@ def expand(campaign: Campaign, params_dir: Path | None = None) -> list[AttackPla
                         parameters=campaign.parameters,
                         loop=loop,
                         reactive_actors=reactive,
+                        bag_params=bag_layout_json(source.bag_config),
                     )
                 )
     return plans

@@ -9,11 +9,14 @@ from advsim_ros.campaign.config import load_campaign
 from advsim_ros.campaign.journal import CampaignJournal
 from advsim_ros.campaign.report import write_report
 from advsim_ros.campaign.suite import export_suite
+from advsim_ros.io.bag import BagConfig
 
 
-def write_campaign_outputs(config: Path, out_dir: Path, journal: CampaignJournal) -> dict[str, Any]:
+def write_campaign_outputs(
+    config: Path, out_dir: Path, journal: CampaignJournal, bag_config: BagConfig | None = None
+) -> dict[str, Any]:
     """OUTDIR/suite, results.csv, transfer.csv, report.md, report.html (each written atomically)."""
-    campaign = load_campaign(config)
+    campaign = load_campaign(config, bag_config)
     out_dir = out_dir.resolve()
     attacks = journal.of_kind("attack", finished=False)  # errors too: results.csv says which attacks failed
     suite = export_suite(out_dir, journal.of_kind("attack"), campaign.failure)

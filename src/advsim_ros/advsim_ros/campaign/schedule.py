@@ -27,6 +27,7 @@ from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
 from advsim_ros.campaign.worker import RESULT_NAME
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.io.bag import BagConfig
 from advsim_ros.ros.launcher import die_with_parent, start_reaper
 from advsim_ros.ros.reaper import descendants, start_time
 
@@ -89,7 +90,7 @@ def _transfer_jobs(campaign: Campaign, entry: dict[str, Any], out_dir: Path) -> 
             "kind": "transfer", "bag": entry["bag"], "stack_entry": stack_entry, "source": row["attack"],
             "source_stack": row["stack"], "target_stack": target, "out_dir": str(out_dir / relative),
             "relative_dir": relative, "config_dir": str(campaign.path.parent), "plan_timeout": campaign.plan_timeout,
-            "parameters": campaign.parameters,
+            "parameters": campaign.parameters, "bag_params": entry.get("bag_params"),
         }  # fmt: skip
         yield Job(f"transfer/{row['attack']}/{target}", spec)
 
@@ -161,12 +162,14 @@ def run_campaign(
     address: str | None = None,
     progress: Callable[[dict[str, Any]], None] | None = None,
     note: Callable[[str], None] | None = None,
+    bag_config: BagConfig | None = None,
 ) -> CampaignJournal:
     """Run (or resume) every job of the campaign; returns its journal. A bad config starts nothing.
 
-    ``note`` gets what the search settings warn about (search_notes), once per algorithm and budget.
+    ``note`` gets what the search settings warn about (search_notes), once per algorithm and budget;
+    ``bag_config`` (--bag-params) is the layout of the bags whose entries name none (config.load_campaign).
     """
-    campaign = load_campaign(config)
+    campaign = load_campaign(config, bag_config)
     if workers < 1:
         raise ValueError(f"--workers: must be at least 1, got {workers}")
     out_dir = out_dir.resolve()

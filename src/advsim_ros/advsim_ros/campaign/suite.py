@@ -45,6 +45,7 @@ def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: Fail
                 "window_start": row["window_start"], "algorithm": row["algorithm"],
                 "recorded": {k: recorded.get(k) for k in ("adversarial_loss", "collision_3s", "collision_5s")},
                 "finding": finding_digest(entry.get("finding")),
+                **({"bag_params": entry["bag_params"]} if entry.get("bag_params") else {}),  # the bag's layout
             }
         )  # fmt: skip
     index = {
@@ -116,7 +117,7 @@ def regress(
             "kind": "transfer", "bag": str((suite / scenario["bag"]).resolve()), "stack_entry": stack_entry,
             "source": scenario["name"], "source_stack": scenario["found_on"], "target_stack": "regress",
             "out_dir": str(out_dir / relative), "relative_dir": relative, "config_dir": str(Path.cwd()),
-            "plan_timeout": plan_timeout,
+            "plan_timeout": plan_timeout, "bag_params": scenario.get("bag_params"),
         }  # fmt: skip
         shutil.rmtree(out_dir / relative, ignore_errors=True)  # a regression run always replays anew
         outcome = run_job(spec)

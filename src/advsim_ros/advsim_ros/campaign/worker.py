@@ -21,6 +21,7 @@ from typing import Any
 from advsim_ros.campaign.config import AttackPlan, stack_spec
 from advsim_ros.campaign.results import attack_row, best_curve
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.io.bag import bag_layout_of
 
 RESULT_NAME = "job_result.json"
 
@@ -49,12 +50,14 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         row = attack_row(plan.identity(), summary, _cost(summary, time.monotonic() - started), job["relative_dir"])
         bag = (summary.get("outputs") or {}).get("adversarial_bag")
         finding = summary.get("finding")
+        layout = {"bag_params": plan.bag_params} if plan.bag_params is not None else {}  # adversarial/'s, too
         return {"row": row, "curve": best_curve(summary), "adversarial": summary.get("adversarial"), "bag": bag,
-                "finding": finding}  # fmt: skip
+                "finding": finding, **layout}  # fmt: skip
     options = AttackOptions(
         bag=Path(job["bag"]), out_dir=out_dir, stack=stack_spec(job["stack_entry"], config_dir), queries=0,
         window_start_frame=0, replay_only=True, plan_timeout=float(job["plan_timeout"]), visual_report=False,
         parameter_overrides=job.get("parameters") or {},
+        bag_config=bag_layout_of(job.get("bag_params"), f"{job['out_dir']}: job bag_params"),
     )  # fmt: skip
     summary = run_attack(options).summary
     queries = summary.get("queries") or []

@@ -20,6 +20,7 @@ from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
 from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
 
@@ -33,6 +34,7 @@ NO_VISUALS_HELP = "leave out bev.gif and report.html (seconds per attack; `advsi
 def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     attack = subparsers.add_parser("attack", help="attack a stack on a scenario bag: search, bag out, summary, BEV")
     attack.add_argument("bag", type=Path, help="scenario bag (rosbag2 folder), e.g. from `advsim convert`")
+    add_bag_params_option(attack)
     add_stack_arguments(attack)
     attack.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
     attack.add_argument("--queries", type=int, default=75, help="search queries (default 75, the paper's BO budget)")
@@ -61,6 +63,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
 
     replay = subparsers.add_parser("replay", help="re-run a stack on a saved adversarial scenario and score it")
     replay.add_argument("bag", type=Path, help="OUTDIR/adversarial of an attack")
+    add_bag_params_option(replay)
     add_stack_arguments(replay)
     replay.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: <bag>-replay)")
     replay.add_argument(
@@ -223,8 +226,10 @@ def _progress_printer(total: int) -> Any:
 
 
 def _run_attack(args: argparse.Namespace) -> int:
+    bag_config = bag_params_config(args.bag_params)
     options = AttackOptions(
         bag=args.bag,
+        bag_config=bag_config,
         out_dir=args.out,
         stack=stack_spec(args),
         algorithm=args.algo,
@@ -289,9 +294,11 @@ def _exit_code(options: AttackOptions, out_dir: Path, summary: dict[str, Any]) -
 
 
 def _run_replay(args: argparse.Namespace) -> int:
+    bag_config = bag_params_config(args.bag_params)
     out = args.out or args.bag.with_name(f"{args.bag.name}-replay")
     options = AttackOptions(
         bag=args.bag,
+        bag_config=bag_config,
         out_dir=out,
         stack=stack_spec(args),
         queries=0,

@@ -10,6 +10,7 @@ from typing import Any
 from tqdm import tqdm
 
 from advsim_ros.cli.common import CommandError
+from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 
 
 def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -20,6 +21,7 @@ def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.Argume
     campaign.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes)")
     campaign.add_argument("--workers", type=int, default=1, help="attacks at once (default 1; 2 cores: 1 or 2)")
     campaign.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start one here)")
+    add_bag_params_option(campaign)
     campaign.set_defaults(run=_run_campaign)
 
     regress = subparsers.add_parser(
@@ -65,12 +67,13 @@ def _run_campaign(args: argparse.Namespace) -> int:
     from advsim_ros.campaign.outputs import write_campaign_outputs
     from advsim_ros.campaign.schedule import run_campaign
 
+    bag_config = bag_params_config(args.bag_params)  # for the config's bag | bags without a bag_params of their own
     progress = _progress()
     try:
-        journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress, _note)
+        journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress, _note, bag_config)
     finally:
         progress.close()
-    written = write_campaign_outputs(args.config, args.out, journal)
+    written = write_campaign_outputs(args.config, args.out, journal, bag_config)
     # attacks that could not run, and attacks that ran but whose queries failed (attack.verdict)
     errors = [
         entry

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from advsim_ros.cli.common import print_result
+from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 from advsim_ros.io.synthetic import write_synthetic_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
 
@@ -61,7 +62,7 @@ def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     curate = subparsers.add_parser("curate", help="rank a bag's 6 s windows by the collision rate of sampled plans")
     curate.add_argument("bag", type=Path, help="scenario bag (or a bag of your own, see --bag-params)")
     curate.add_argument("--params", type=Path, default=None, help="curation settings (default: params/curation.yaml)")
-    curate.add_argument("--bag-params", **bag_params)
+    add_bag_params_option(curate)
     curate.add_argument("-o", "--output", type=Path, default=None, help="also write the best window as a bag")
     curate.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     curate.add_argument("--json", action="store_true", help="print the windows as JSON")
@@ -80,23 +81,23 @@ def add_label_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     )
     label.add_argument("--mount", default=None, help="LiDAR mount in the ego frame: x,y,z,roll,pitch,yaw [m, rad]")
     label.add_argument("--params", type=Path, default=None, help="labeller settings (default: params/labelling.yaml)")
-    label.add_argument("--bag-params", type=Path, default=None, help="bag topics and frames (default: params/bag.yaml)")
+    add_bag_params_option(label)
     label.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     label.set_defaults(run=_run_label)
 
 
 def _run_label(args: argparse.Namespace) -> int:
-    from advsim_ros.io.bag import load_bag_config
     from advsim_ros.labelling.command import label_bag
     from advsim_ros.labelling.odometry import mount_from_string
 
+    bag_config = bag_params_config(args.bag_params)
     labelled = label_bag(
         args.bag,
         args.output,
         tracks_topic=args.tracks_topic,
         mount=mount_from_string(args.mount) if args.mount is not None else None,
         params=args.params,
-        bag_config=load_bag_config(args.bag_params) if args.bag_params is not None else None,
+        bag_config=bag_config,
         overwrite=args.overwrite,
     )
     return print_result(labelled.describe())
@@ -105,8 +106,9 @@ def _run_label(args: argparse.Namespace) -> int:
 def _run_curate(args: argparse.Namespace) -> int:
     from advsim_ros.io import commands
 
+    bag_config = bag_params_config(args.bag_params)
     curated = commands.curate_bag(
-        args.bag, params=args.params, bag_params=args.bag_params, output=args.output, overwrite=args.overwrite
+        args.bag, params=args.params, bag_config=bag_config, output=args.output, overwrite=args.overwrite
     )
     return print_result(curated.as_json() if args.json else curated.as_table())
 

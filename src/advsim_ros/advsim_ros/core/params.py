@@ -33,7 +33,7 @@ def load_node_params(path: Path, node_name: str) -> dict[str, Any]:
     except OSError as error:
         raise ParamsError(f"{path}: cannot read parameters file ({error})") from error
     except yaml.YAMLError as error:
-        raise ParamsError(f"{path}: not valid YAML ({error})") from error
+        raise ParamsError(f"{path}: not valid YAML ({yaml_problem(error)})") from error
     if not isinstance(document, dict):
         raise ParamsError(f"{path}: expected a mapping of node names at the top level")
     node = document.get(f"/{node_name}", document.get(node_name))
@@ -43,6 +43,14 @@ def load_node_params(path: Path, node_name: str) -> dict[str, Any]:
         raise ParamsError(f"{path}: /{node_name} must hold a 'ros__parameters' mapping")
     parameters: dict[str, Any] = node["ros__parameters"]
     return parameters
+
+
+def yaml_problem(error: yaml.YAMLError) -> str:
+    """A YAML error in one line: the problem and where (PyYAML's own message spans several, with a caret)."""
+    problem, mark = getattr(error, "problem", None), getattr(error, "problem_mark", None)
+    if problem and mark is not None:
+        return f"{problem} at line {mark.line + 1}, column {mark.column + 1}"
+    return " ".join(str(error).split())
 
 
 def _coerce(value: Any, annotation: Any, key: str) -> Any:

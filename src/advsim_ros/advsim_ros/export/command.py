@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from advsim_ros.io.bag import add_bag_params_option, bag_params_config
+
 
 def add_export_commands(
     subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
@@ -21,6 +23,7 @@ def add_export_commands(
     xosc.add_argument("bag", type=Path, help="scenario bag, e.g. OUTDIR/adversarial of an attack")
     xosc.add_argument("-o", "--output", type=Path, required=True, help="file to write, e.g. scenario.xosc")
     xosc.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    add_bag_params_option(xosc)
     xosc.set_defaults(run=_run_openscenario)
     route = formats.add_parser(
         "route", help="the logged ego route from a window on, for a planner that follows one (CSV, GeoJSON, Path bag)"
@@ -36,6 +39,7 @@ def add_export_commands(
         help="the stack's profile: the route in its plans' frame (first fix, datum, static), GeoJSON from its datum",
     )  # fmt: skip
     route.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    add_bag_params_option(route)
     route.set_defaults(run=_run_route)
     return formats
 
@@ -43,12 +47,14 @@ def add_export_commands(
 def _run_route(args: Any) -> int:
     from advsim_ros.export.route import export_route
 
-    print(export_route(args.bag, args.output, args.window_start, args.stack_profile, args.overwrite))
+    bag_config = bag_params_config(args.bag_params)
+    print(export_route(args.bag, args.output, args.window_start, args.stack_profile, args.overwrite, bag_config))
     return 0
 
 
 def _run_openscenario(args: Any) -> int:
     from advsim_ros.export.openscenario import export_openscenario
 
-    print(export_openscenario(args.bag, args.output, overwrite=args.overwrite).describe())
+    bag_config = bag_params_config(args.bag_params)
+    print(export_openscenario(args.bag, args.output, overwrite=args.overwrite, bag_config=bag_config).describe())
     return 0

@@ -37,7 +37,7 @@ import numpy as np
 from advsim_ros.contract.tracks import TrackRecord
 from advsim_ros.core.atomic import atomic_file
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray, Scenario, ScenarioError
-from advsim_ros.io.bag import read_scenario_bag
+from advsim_ros.io.bag import BagConfig, read_scenario_bag
 from advsim_ros.viz.attack_view import bag_perturbed_ids
 
 NS_PER_S = 1_000_000_000
@@ -276,13 +276,19 @@ def scenario_xml(scenario: Scenario, perturbed_ids: Sequence[str], config: Expor
 
 
 def export_openscenario(
-    bag: Path, output: Path, *, overwrite: bool = False, config: ExportConfig | None = None
+    bag: Path,
+    output: Path,
+    *,
+    overwrite: bool = False,
+    config: ExportConfig | None = None,
+    bag_config: BagConfig | None = None,
 ) -> ExportReport:
-    """Write a scenario bag (e.g. OUTDIR/adversarial) as an OpenSCENARIO file, validated, atomically."""
+    """Write a scenario bag (e.g. OUTDIR/adversarial; its layout ``bag_config``) as an OpenSCENARIO file,
+    validated, atomically."""
     output = Path(output)
     if output.exists() and not overwrite:
         raise ExportError(f"{output} exists (pass --overwrite to replace it)")
-    scenario = read_scenario_bag(Path(bag), load_sweeps=False)
+    scenario = read_scenario_bag(Path(bag), config=bag_config, load_sweeps=False)
     perturbed = bag_perturbed_ids(Path(bag))
     xml = scenario_xml(scenario, perturbed, config)
     with atomic_file(output, "wb") as stream:

@@ -19,6 +19,7 @@ import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,6 +28,9 @@ from advsim_ros.adapters.profile import StackProfile
 from advsim_ros.core.geometry import wrap_angle
 from advsim_ros.core.metrics import to_ego_frame
 from advsim_ros.core.types import FloatArray, IntArray, Plan, Scenario, ScenarioError
+
+if TYPE_CHECKING:
+    from advsim_ros.io.bag import BagConfig
 
 ROUTE_TOPIC = "/route"
 FORMATS = {".csv": "csv", ".geojson": "geojson"}  # any other name: a rosbag2 folder
@@ -108,18 +112,26 @@ def write_route_bag(route: Route, output: Path, overwrite: bool) -> None:
     write_messages_bag(output, [(ROUTE_TOPIC, names.PATH, int(route.stamps_ns[0]), raw)], overwrite)
 
 
-def export_route(bag: Path, output: Path, window_start: int, profile_file: Path | None, overwrite: bool) -> str:
-    """Write the route (format by output's name) atomically; returns one line saying what was written."""
+def export_route(
+    bag: Path,
+    output: Path,
+    window_start: int,
+    profile_file: Path | None,
+    overwrite: bool,
+    bag_config: BagConfig | None = None,
+) -> str:
+    """Write the route (format by output's name) atomically; returns one line saying what was written.
+
+    ``bag_config`` is the bag's layout (--bag-params; default the contract's): its poses, its world frame."""
     from advsim_ros.adapters.profile import load_profile
     from advsim_ros.core.atomic import atomic_file
-    from advsim_ros.io.bag import read_scenario_bag
-    from advsim_ros.io.bag.config import BagConfig
+    from advsim_ros.io.bag import BagConfig, read_scenario_bag
 
     kind = format_of(output)
     if output.exists() and not overwrite:
         raise ScenarioError(f"{output} exists (pass --overwrite to replace it)")
     profile = None if profile_file is None else load_profile(profile_file)
-    config = BagConfig()
+    config = bag_config or BagConfig()
     scenario = read_scenario_bag(bag, config=config, load_sweeps=False)
     route = route_of(scenario, window_start, profile, config.world_frame)
     if kind == "bag":

@@ -149,13 +149,13 @@ def curate_bag(
     bag: Path,
     *,
     params: Path | None = None,
-    bag_params: Path | None = None,
+    bag_config: BagConfig | None = None,
     output: Path | None = None,
     overwrite: bool = False,
 ) -> CurationReport:
     """Rank a bag's candidate windows by collision rate; optionally write the best window as a bag."""
     config = load_curation_config(params) if params is not None else CurationConfig()
-    bags = bag_config(bag_params)
+    bags = bag_config or BagConfig()
     scenario = read_scenario_bag(bag, config=bags, load_sweeps=output is not None)
     windows = curate_windows(scenario, config)
     best = best_window(windows)

@@ -24,7 +24,7 @@ from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.journal import read_records
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.types import Plan, Scenario, ScenarioError
-from advsim_ros.io.bag import BagReader, read_scenario_bag
+from advsim_ros.io.bag import BagConfig, BagReader, bag_layout_of, read_scenario_bag
 from advsim_ros.viz.markers import first_collision_ns
 
 
@@ -83,15 +83,22 @@ class AttackView:
         return int(self.adversarial.frame_stamps_ns[self.decision_index])
 
 
-def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path, original: Scenario | None = None) -> AttackView:
+def load_attack_view(
+    bag: Path,
+    summary: Mapping[str, Any] | Path,
+    bag_config: BagConfig | None = None,
+    original: Scenario | None = None,
+) -> AttackView:
     """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path).
 
-    ``original``: the attacked window of the source log, when the caller has it (else read from the source bag).
-    """
+    Both bags are read in ``bag_config``'s layout (--bag-params), else in the one the summary recorded
+    (the attack wrote adversarial/ in its source bag's layout), else in the contract's. ``original``: the
+    attacked window of the source log, when the caller has it (else read from the source bag)."""
     values = load_summary(summary)
     bag = Path(bag)
-    adversarial = read_scenario_bag(bag, load_sweeps=True)
     scenario = values["scenario"]
+    layout = bag_config or bag_layout_of(scenario.get("bag_params"), "summary.json scenario.bag_params")
+    adversarial = read_scenario_bag(bag, config=layout, load_sweeps=True)
     window = WindowConfig(
         window_start_frame=int(scenario["window_start_frame"]),
         history_frames=int(scenario["history_frames"]),
@@ -104,7 +111,7 @@ def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path, original: Sce
         )
     perturbed = tuple(values.get("perturbed_actors") or ()) or bag_perturbed_ids(bag)
     if original is None or not np.array_equal(original.frame_stamps_ns, adversarial.frame_stamps_ns):
-        original = _original_window(Path(scenario["bag"]), window, adversarial)
+        original = _original_window(Path(scenario["bag"]), window, adversarial, layout)
     original_plan = _original_plan(values)
     adversarial_plan = bag_plan(bag)
     decision = window.decision_index
@@ -127,11 +134,13 @@ def load_attack_view(bag: Path, summary: Mapping[str, Any] | Path, original: Sce
     )
 
 
-def _original_window(source: Path, window: WindowConfig, adversarial: Scenario) -> Scenario | None:
+def _original_window(
+    source: Path, window: WindowConfig, adversarial: Scenario, layout: BagConfig | None
+) -> Scenario | None:
     """The attacked window of the source bag, when it is still there and is the same log."""
     if not (source / "metadata.yaml").is_file():
         return None
-    log = read_scenario_bag(source, load_sweeps=True)
+    log = read_scenario_bag(source, config=layout, load_sweeps=True)
     cropped = window.crop(log)
     if not np.array_equal(cropped.frame_stamps_ns, adversarial.frame_stamps_ns):
         return None  # the source bag was replaced by another log

@@ -7,7 +7,15 @@ read from it. Modules: ``config`` (topics and frames), ``storage``
 (opening bags), ``read`` and ``write`` (scenarios), ``poses`` (users' ego poses).
 """
 
-from advsim_ros.io.bag.config import BagConfig, BagError, load_bag_config
+from advsim_ros.io.bag.config import (
+    BagConfig,
+    BagError,
+    add_bag_params_option,
+    bag_layout_json,
+    bag_layout_of,
+    bag_params_config,
+    load_bag_config,
+)
 from advsim_ros.io.bag.read import read_scenario_bag
 from advsim_ros.io.bag.storage import (
     BagReader,
@@ -26,6 +34,10 @@ __all__ = [
     "BagReader",
     "BagSummary",
     "TopicSummary",
+    "add_bag_params_option",
+    "bag_layout_json",
+    "bag_layout_of",
+    "bag_params_config",
     "check_lidar_sweeps",
     "iter_bag_sweeps",
     "lidar_topic_of",

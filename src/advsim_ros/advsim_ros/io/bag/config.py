@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from advsim_ros.contract import topics
 from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.types import ScenarioError
 
 BAG_PARAMS_NODE = "**"  # params/bag.yaml applies to every node that reads or writes bags
+# ends the messages of a bag whose topics or frames are not the ones read: how to name them
+LAYOUT_HINT = " (a bag recorded with other names: describe its layout with --bag-params FILE.yaml, docs/data.md)"
 
 
 class BagError(ScenarioError):
@@ -67,4 +73,45 @@ def load_bag_config(path: Path) -> BagConfig:
     section = parameters.get("bag")
     if not isinstance(section, dict):
         raise BagError(f"{path}: /{BAG_PARAMS_NODE} ros__parameters needs a 'bag' mapping")
-    return config_from_mapping(BagConfig, section, f"{path} bag")
+    try:
+        return config_from_mapping(BagConfig, section, f"{path}: bag")
+    except BagError as error:  # BagConfig's own checks do not know the file
+        if str(path) in str(error):
+            raise
+        raise BagError(f"{path}: {error}") from None
+
+
+# --------------------------------------------------------------------------- --bag-params, one option for all
+
+BAG_PARAMS_HELP = (
+    "the layout of a bag recorded with names of its own: LiDAR, odometry, tf and track topics, frame names, "
+    "ego-pose source (a file shaped like params/bag.yaml, docs/data.md); without it the contract's names "
+    "(report: the layout its summary.json recorded)"
+)
+
+
+def add_bag_params_option(parser: argparse.ArgumentParser, help_text: str = BAG_PARAMS_HELP) -> None:
+    """``--bag-params FILE.yaml``, the same on every command that reads a bag (load it with ``bag_params_config``)."""
+    parser.add_argument("--bag-params", type=Path, default=None, metavar="FILE.yaml", help=help_text)
+
+
+def bag_params_config(path: Path | None) -> BagConfig | None:
+    """The layout ``--bag-params FILE`` describes (None without one); BagError '--bag-params FILE: problem'."""
+    if path is None:
+        return None
+    try:
+        return load_bag_config(Path(path))
+    except ScenarioError as error:
+        raise BagError(f"--bag-params {error}") from None
+
+
+def bag_layout_json(config: BagConfig | None) -> dict[str, Any] | None:
+    """A layout as JSON (summary.json, campaign jobs, suite indexes); None stays None."""
+    return None if config is None else dataclasses.asdict(config)
+
+
+def bag_layout_of(values: Mapping[str, Any] | None, context: str) -> BagConfig | None:
+    """The layout ``bag_layout_json`` wrote; None for None (no layout recorded: the contract's)."""
+    if values is None:
+        return None
+    return config_from_mapping(BagConfig, dict(values), context)

@@ -22,7 +22,7 @@ from advsim_ros.contract.scenario import drivable_area_from_grid, road_map_from_
 from advsim_ros.contract.spatial import pose_matrix
 from advsim_ros.contract.tracks import TrackRecord, track_from_msg
 from advsim_ros.core.types import ActorTrack, EgoTrajectory, FloatArray, Scenario, ScenarioError, Sweep
-from advsim_ros.io.bag.config import BagConfig, BagError
+from advsim_ros.io.bag.config import LAYOUT_HINT, BagConfig, BagError
 from advsim_ros.io.bag.poses import interpolate_poses, static_transform
 from advsim_ros.io.bag.storage import BagReader, cloud_points, log
 
@@ -140,7 +140,7 @@ def _check_frames(bag: BagReader, topic: str, stamp: int, parent: str, child: st
     if parent != config.world_frame or child != config.ego_frame:
         raise BagError(
             f"bag {bag.path}: {topic} at {stamp} ns gives {child!r} in {parent!r}, but world_frame/ego_frame are "
-            f"{config.world_frame!r}/{config.ego_frame!r} (set them in params/bag.yaml)"
+            f"{config.world_frame!r}/{config.ego_frame!r}{LAYOUT_HINT}"
         )
 
 
@@ -180,8 +180,8 @@ def _assemble(
         found = static_transform(collected.static, config.ego_frame, sensor_frame)
         if found is None:
             raise BagError(
-                f"bag {path}: no transform {config.ego_frame} -> {sensor_frame} on {config.tf_static_topic} "
-                "(set ego_frame / sensor_frame in params/bag.yaml)"
+                f"bag {path}: no transform {config.ego_frame} -> {sensor_frame} on {config.tf_static_topic}"
+                + LAYOUT_HINT
             )
         ego_T_sensor = found
     else:

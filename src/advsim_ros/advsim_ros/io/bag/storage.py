@@ -33,7 +33,7 @@ from rosbags.typesys.store import Typestore
 from advsim_ros.contract import codec, names, topics
 from advsim_ros.contract.pointcloud import DroppedPoints, cloud_to_points, cloud_view, finite_mask
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.io.bag.config import BagConfig, BagError
+from advsim_ros.io.bag.config import LAYOUT_HINT, BagConfig, BagError
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +209,7 @@ class BagReader:
         if not matches:
             if required:
                 available = sorted({f"{c.topic} ({c.msgtype})" for c in self.reader.connections})
-                raise BagError(f"bag {self.path} has no {required} topic {topic}; it has {available}")
+                raise BagError(f"bag {self.path} has no {required} topic {topic}; it has {available}{LAYOUT_HINT}")
             return None
         if any(c.msgtype != msgtype for c in matches):
             raise BagError(f"bag {self.path}: topic {topic} has type {matches[0].msgtype}, expected {msgtype}")
