@@ -36,7 +36,7 @@ from advsim_ros.attack.params import merge_parameters, node_files, node_paramete
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
-from advsim_ros.core.search.registry import config_from_params
+from advsim_ros.core.search.registry import RENAMED_ALGORITHMS, config_from_params
 from advsim_ros.ros.launcher import (
     Launcher,
     NodeSpec,
@@ -105,6 +105,11 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
                 options.algorithm: {"max_queries": options.queries},
             }
         }
+        search = overrides["/search"]["ros__parameters"]
+        filed = node_parameters(node_files(options.params, "search"), "search")
+        for old, new in RENAMED_ALGORITHMS.items():  # a params folder of before a rename: the section as named now
+            if new == options.algorithm and isinstance(filed.get(old), dict):  # (checks.preflight warns)
+                search[new] = {**filed[old], **filed.get(new, {}), **search[new]}
     player = overrides["/scenario_player"]["ros__parameters"]
     if options.reactive_actors:
         player["reactive_actors"] = True

@@ -4,6 +4,8 @@ The header names the configuration (its digest); a folder holds one campaign. A 
 any point leaves a journal whose complete lines all stand (a torn last line is dropped on
 reopening). Running the campaign again skips every journaled job; a job that finished but was
 not journaled yet is picked up from its own folder's result file (campaign.worker), not re-run.
+A journal written before an algorithm was renamed (SimBA was "rs") reads with the name it has now,
+in its rows and its attacks' keys, so that the campaign resumes under either name.
 """
 
 from __future__ import annotations
@@ -16,9 +18,39 @@ from typing import Any
 
 from advsim_ros.campaign.config import CampaignError
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.renamed import canonical_algorithm
 
 JOURNAL_NAME = "campaign.jsonl"
 VERSION = 1
+
+
+def _renamed(entries: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Entries with a renamed algorithm under its name now: its rows' ``algorithm`` and the attack keys naming it
+    (config.expand spells ``-{algorithm}{budget}-``), in attack and transfer jobs alike."""
+    keys: dict[str, str] = {}
+    for entry in entries.values():
+        row = entry.get("row")
+        if str(entry["job"]).startswith("attack/") and isinstance(row, dict):
+            old = str(row.get("algorithm", ""))
+            if canonical_algorithm(old) != old:
+                key = str(row.get("attack", ""))
+                budget = row.get("budget", "")
+                keys[key] = key.replace(f"-{old}{budget}-", f"-{canonical_algorithm(old)}{budget}-", 1)
+    if not keys:
+        return entries
+    renamed: dict[str, dict[str, Any]] = {}
+    for job, entry in entries.items():
+        kind, _, rest = job.partition("/")
+        key, slash, target = rest.partition("/")
+        if key in keys:
+            job = f"{kind}/{keys[key]}{slash}{target}"
+            entry = {**entry, "job": job}
+            if isinstance(entry.get("row"), dict):
+                entry["row"] = dict(entry["row"], attack=keys[key])
+                if kind == "attack":
+                    entry["row"]["algorithm"] = canonical_algorithm(str(entry["row"]["algorithm"]))
+        renamed[job] = entry
+    return renamed
 
 
 class CampaignJournal:
@@ -60,7 +92,7 @@ class CampaignJournal:
             with path.open("r+b") as stream:
                 stream.truncate(good)
                 os.fsync(stream.fileno())
-        return CampaignJournal(path, entries)
+        return CampaignJournal(path, _renamed(entries))
 
     def __contains__(self, job: str) -> bool:
         """Finished without an error (a job that failed is tried again when the campaign is run again)."""
