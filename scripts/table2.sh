@@ -10,7 +10,7 @@
 #      Argoverse 2 logs with simulated LiDAR (params/campaign_table2_av2.yaml), and the table.
 #   scripts/table2.sh [OUT]      e.g. scripts/table2.sh out/table2    (WORKERS=2 for two attacks at once)
 # TRAINING_SEED=N trains every stack with training.seed N (another draw of the same training); one OUT per seed,
-# then `python -m advsim_ros.campaign.table2 OUT_A/eval OUT_B/eval` pools them, each pairing within its own run.
+# then `advsim campaign-table2 OUT_A/eval OUT_B/eval` pools them, each pairing within its own run.
 # Only train-split scenarios are trained on and only test-split ones evaluated (docs/stacks.md;
 # tests/stacks/test_table2_split.py). Campaigns resume from their journals, so a stopped run can be
 # started again with the same OUT. Run from the repository root.
@@ -77,6 +77,6 @@ if [[ -d "${av2_logs[0]}" ]]; then
 else
   echo "table2: no Argoverse 2 logs in ../shared/data/av2: the table has the synthetic test scenes only" >&2
 fi
-.venv/bin/python -m advsim_ros.campaign.table2 "${evals[@]}" | tee "$out/table2.md"
+"$advsim" campaign-table2 "${evals[@]}" -o "$out/table2.md"
 echo "table2: $out/table2.md (each stack original vs adversarial, paired differences, per scene family);" \
   "generalisation: Table 3 (transfer) of report.md in ${evals[*]}"

@@ -3,6 +3,7 @@ anything starts; the journal keeps what finished and refuses another configurati
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -87,7 +88,7 @@ def test_reactive_actors_make_the_closed_loop_attacks_reactive_and_only_those(ba
 
 def test_curated_windows_are_the_top_k_by_collision_rate_and_synthetic_logs_are_written(tmp_path: Path) -> None:
     values = {"scenarios": [{"synthetic": {"seed_range": [0, 2]}, "windows": {"curated": 2}}],
-              "stacks": ["reference"], "algorithms": {"rs": 3}}  # fmt: skip
+              "stacks": ["reference"], "algorithms": {"simba": 3}}  # fmt: skip
     campaign = materialize(load_campaign(_write(tmp_path, values)), tmp_path / "logs")
     plans = expand(campaign)
     assert sorted({p.scenario for p in plans}) == ["synthetic_seed0", "synthetic_seed1"]
@@ -102,7 +103,7 @@ def test_synthetic_families_give_one_log_per_family_and_seed_written_with_that_f
 
     synthetic = {"seeds": [4], "families": ["street", "cut_in"]}
     values = {"scenarios": [{"synthetic": synthetic, "windows": {"starts": [0]}}], "stacks": ["reference"],
-              "algorithms": {"rs": 3}}  # fmt: skip
+              "algorithms": {"simba": 3}}  # fmt: skip
     campaign = materialize(load_campaign(_write(tmp_path, values)), tmp_path / "logs")
     assert [p.scenario for p in expand(campaign)] == ["synthetic_seed4", "synthetic_cut_in_seed4"]
     written = read_scenario_bag(tmp_path / "logs" / "synthetic_cut_in_seed4")
@@ -172,6 +173,29 @@ def test_the_journal_keeps_finished_jobs_drops_a_torn_line_and_refuses_another_c
     assert journal.path.read_text().endswith("\n")
     with pytest.raises(CampaignError, match="another configuration"):
         CampaignJournal.open(tmp_path, "digest-b", tmp_path / "b.yaml")
+
+
+def test_simba_under_its_old_name_rs_is_simba_in_the_config_and_in_a_journal_of_before(
+    bag: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level(logging.WARNING):
+        campaign = load_campaign(_write(tmp_path, {**_good(bag), "algorithms": {"rs": 5}}))
+    assert dict(campaign.algorithms) == {"simba": 5}
+    assert [record.getMessage() for record in caplog.records] == [
+        "search algorithm 'rs' is deprecated: use 'simba' (the same algorithm)"
+    ]
+    with pytest.raises(CampaignError, match="named twice"):
+        load_campaign(_write(tmp_path, {**_good(bag), "algorithms": {"rs": 5, "simba": 7}}))
+    key = expand(campaign)[0].key
+    assert "-simba5-" in key
+    old_key = key.replace("-simba5-", "-rs5-")
+    journal = CampaignJournal.open(tmp_path, "digest-a", tmp_path / "a.yaml")
+    journal.append(f"attack/{old_key}", {"row": {"attack": old_key, "algorithm": "rs", "budget": 5}})
+    journal.append(f"transfer/{old_key}/learned", {"row": {"attack": old_key, "target_stack": "learned"}})
+    again = CampaignJournal.open(tmp_path, "digest-a", tmp_path / "a.yaml")
+    assert f"attack/{key}" in again  # the campaign resumes: the attack is not run again
+    assert again.entries[f"attack/{key}"]["row"] == {"attack": key, "algorithm": "simba", "budget": 5}
+    assert again.entries[f"transfer/{key}/learned"]["row"]["attack"] == key
 
 
 def test_the_failure_rule() -> None:

@@ -150,8 +150,11 @@ def test_nan_metrics_are_left_out_of_their_cell(tmp_path: Path) -> None:
 def test_tables_appear_only_for_the_dimensions_the_campaign_varies(campaign: Any, tmp_path: Path) -> None:
     _, written, _ = campaign
     markdown = written["markdown"].read_text()
-    for title in ("Table 1:", "Table 3:", "Table 4:", "Table 5:", "Failed attacks", "Found failures"):
+    for title in ("Table 1:", "Table 2:", "Table 3:", "Table 4:", "Table 5:", "Failed attacks", "Found failures"):
         assert title in markdown
+    # Table 2: the standard stack (learned) first, the other one paired with it scene by scene; per family too
+    assert re.search(r"\| learned \| 12 \| .* \| – \|\n\| modular \| 12 \| .* pp \(n=12\) \|", markdown)
+    assert "## Table 2 per scene family" in markdown
     assert "Table 6:" not in markdown  # one objective
     assert "| stack | actors | n |" in markdown  # two stacks: grouped per stack too
     assert "| learned | ga | 100 |" in markdown
@@ -161,7 +164,7 @@ def test_tables_appear_only_for_the_dimensions_the_campaign_varies(campaign: Any
     markdown = written["markdown"].read_text()
     assert "Table 1:" in markdown
     assert "Table 6:" in markdown
-    assert not re.search(r"Table [345]:|Failed attacks|Found failures|Search progress", markdown)
+    assert not re.search(r"Table [2345]:|Failed attacks|Found failures|Search progress", markdown)
     assert set(written) == {"results", "markdown", "html", "collision_plot"}  # no transfer.csv, no curves
 
 

@@ -27,6 +27,7 @@ from advsim_ros.core.feasibility import (
     InfeasibleError,
     PerturbedTrajectory,
     PerturberConfig,
+    TooFewActorsError,
     Window,
     build_feasible_set,
     fit_reference,
@@ -368,8 +369,9 @@ def test_joint_projection_keeps_the_perturbed_actors_apart(street: Scenario) -> 
 
 def test_selection_fails_clearly_when_too_few_actors_can_be_perturbed(street: Scenario) -> None:
     config = dataclasses.replace(TEST_CONFIG, num_actors=4)
-    with pytest.raises(InfeasibleError, match="found 3 of 4") as caught:
+    with pytest.raises(TooFewActorsError, match="found 3 of 4") as caught:
         select_actors(street, Window(0, 60), config, np.random.default_rng(5))
+    assert isinstance(caught.value, InfeasibleError)  # what the perturber and the checks catch
     assert len(caught.value.reports) == 4
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from advsim_ros.core.journal import CORRUPT_SUFFIX, Fingerprint, Journal, QueryRecord, read_records
+from advsim_ros.core.journal import CORRUPT_SUFFIX, Fingerprint, Journal, JournalError, QueryRecord, read_records
 
 FINGERPRINT = Fingerprint({"bag": "log", "seed": 0})
 
@@ -53,3 +53,15 @@ def test_a_damaged_line_in_the_middle_is_kept_aside_and_said_and_the_lines_after
     reopened = Journal.open(path, FINGERPRINT)  # the journal itself is clean now: nothing more to say
     assert [record.query_id for record in reopened.records] == [0, 2, 3, 4]
     assert aside.read_bytes() == damaged + b"\n"
+
+
+def test_a_journal_of_simba_under_its_old_name_rs_resumes_as_simba(tmp_path: Path) -> None:
+    path = tmp_path / "queries.jsonl"
+    old = QueryRecord(0, "rs", ("7",), (0.5,), {"status": "ok", "adversarial_loss": 1.0})
+    header = {"journal_version": 1, "fingerprint": {"bag": "log", "algorithm": "rs"}}
+    path.write_text(json.dumps(header) + "\n" + json.dumps(old.as_json()) + "\n", encoding="utf-8")
+    journal = Journal.open(path, Fingerprint({"bag": "log", "algorithm": "simba"}))
+    assert [record.algorithm for record in journal.records] == ["simba"]
+    assert [record.algorithm for record in read_records(path)] == ["simba"]
+    with pytest.raises(JournalError, match="algorithm: 'simba' there, 'bo' now"):
+        Journal.open(path, Fingerprint({"bag": "log", "algorithm": "bo"}))

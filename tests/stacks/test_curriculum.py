@@ -15,9 +15,9 @@ from advsim_ros.io.synthetic import SyntheticConfig, SyntheticLog, generate_synt
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig, ModelConfig, TrainingConfig
 from advsim_ros.stacks.learned.dataset import hardest_windows, window_split
+from advsim_ros.stacks.learned.samples import samples_from_scenario
 from advsim_ros.stacks.learned.stack import load_model
 from advsim_ros.stacks.learned.train import (
-    samples_from_scenario,
     train_il,
     train_planner,
     training_scenarios,

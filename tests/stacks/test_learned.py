@@ -23,8 +23,9 @@ from advsim_ros.stacks.learned.config import (
     TrainingConfig,
 )
 from advsim_ros.stacks.learned.raster import GROUND_BAND, ReducedSweep, motion_features, motion_prior, rasterize
+from advsim_ros.stacks.learned.samples import samples_from_scenario
 from advsim_ros.stacks.learned.stack import LearnedStack, load_model
-from advsim_ros.stacks.learned.train import _mirror, samples_from_scenario, train_planner
+from advsim_ros.stacks.learned.train import _mirror, train_planner
 from advsim_ros.stacks.replay import replay, scenario_frames
 
 RASTER = RasterConfig()
@@ -102,7 +103,8 @@ _TRAIN_AND_DIGEST = """
 import hashlib, dataclasses, numpy as np
 from advsim_ros.stacks.learned.config import LearnedStackConfig
 from advsim_ros.stacks.learned.model import num_features
-from advsim_ros.stacks.learned.train import TrainingData, train_planner
+from advsim_ros.stacks.learned.samples import TrainingData
+from advsim_ros.stacks.learned.train import train_planner
 config = LearnedStackConfig()
 config = dataclasses.replace(config, training=dataclasses.replace(config.training, epochs=2, batch_size=8, threads=2))
 rng, n = np.random.default_rng(0), 32

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 from advsim_ros.campaign.config import load_campaign
@@ -47,7 +49,7 @@ def test_synthetic_seed_reads_the_names_synthetic_logs_get() -> None:
 def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene(tmp_path: Path) -> None:
     import json
 
-    from advsim_ros.campaign.table2 import journal_rows, paired_differences, table2_markdown
+    from advsim_ros.campaign.table2 import campaign_rows, paired_differences, table2_markdown
 
     def row(stack: str, scene: str, adversarial: float) -> dict[str, object]:
         return {"stack": stack, "scenario": scene, "window_start": 0, "status": "ok",
@@ -58,11 +60,12 @@ def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene
 
     rows = [row("learned", "a", 1.0), row("learned", "b", 1.0), row("learned", "c", 0.0),
             row("learned_robust", "a", 0.0), row("learned_robust", "b", 1.0)]  # fmt: skip
+    header = {"campaign_journal": 1, "config_digest": "d"}
     journal = tmp_path / "campaign.jsonl"
-    lines = [{"campaign_journal": 1}, *({"job": f"attack/{i}", "row": r} for i, r in enumerate(rows)),
+    lines = [header, *({"job": f"attack/{i}", "row": r} for i, r in enumerate(rows)),
              {"job": "attack/failed", "row": {**rows[0], "status": "error"}}]  # fmt: skip
     journal.write_text("".join(json.dumps(line) + "\n" for line in lines))
-    read = journal_rows(journal)
+    read = campaign_rows([tmp_path])
     assert len(read) == 5  # the failed attack and the header are not rows
     assert paired_differences(read, "learned_robust", "adversarial_collision_5s") == [-1.0, 0.0]  # scene c unpaired
     table = table2_markdown(read).splitlines()
@@ -74,15 +77,30 @@ def test_table2_pairs_each_fine_tuned_stack_with_the_standard_one_scene_by_scene
     other = tmp_path / "seed1"
     other.mkdir()
     seed1 = [row("learned", "a", 0.0), row("learned_robust", "a", 1.0)]
-    (other / "campaign.jsonl").write_text("".join(json.dumps({"job": f"attack/{i}", "row": r}) + "\n"
-                                                  for i, r in enumerate(seed1)))  # fmt: skip
-    pooled = read + journal_rows(other / "campaign.jsonl")
+    (other / "campaign.jsonl").write_text("".join(json.dumps(line) + "\n" for line in
+                                                  [header, *({"job": f"attack/{i}", "row": r}
+                                                             for i, r in enumerate(seed1))]))  # fmt: skip
+    pooled = campaign_rows([tmp_path, other])
+    assert len(pooled) == 7
     assert paired_differences(pooled, "learned_robust", "adversarial_collision_5s") == [-1.0, 0.0, 1.0]
+    # the command: the same tables, pooled from the folders given
+    written = tmp_path / "table2.md"
+    result = subprocess.run(
+        [sys.executable, "-m", "advsim_ros.cli", "campaign-table2", str(tmp_path), str(other), "-o", str(written)],
+        capture_output=True, text=True, timeout=120, check=True,
+    )  # fmt: skip
+    assert result.stdout == written.read_text() == table2_markdown(pooled)
+    assert "| learned_robust | 3 |" in result.stdout
+    assert "| family | learned | learned_robust |" in result.stdout
+    missing = subprocess.run([sys.executable, "-m", "advsim_ros.cli", "campaign-table2", str(tmp_path / "none")],
+                             capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+    assert missing.returncode == 1
+    assert "no campaign journal" in missing.stderr
 
 
 def test_table2_counts_collided_scenes_per_scene_family() -> None:
     from advsim_ros.campaign.config import scene_family, synthetic_source_name
-    from advsim_ros.campaign.table2 import family_markdown
+    from advsim_ros.campaign.table2 import family_table
 
     assert scene_family(synthetic_source_name("lead_brake", 3)) == "lead_brake"
     assert scene_family(synthetic_source_name("street", 101)) == "street"
@@ -97,7 +115,7 @@ def test_table2_counts_collided_scenes_per_scene_family() -> None:
             row("learned", "synthetic_cut_in_seed0", 0.0, float("nan")),
             row("learned_robust", "synthetic_lead_brake_seed0", 1.0, 0.0),
             row("learned_robust", "synthetic_cut_in_seed0", 0.0, 1.0)]  # fmt: skip
-    assert family_markdown(rows).splitlines() == [
+    assert family_table(rows).markdown().splitlines() == [
         "| family | learned | learned_robust |",
         "| --- | --- | --- |",
         "| cut_in | 0 / 0 of 1 | 1 / 0 of 1 |",

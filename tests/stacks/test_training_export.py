@@ -16,7 +16,7 @@ from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
 from advsim_ros.stacks.learned.dataset import export_training, load_shard, source_window, window_split
-from advsim_ros.stacks.learned.train import samples_from_scenario
+from advsim_ros.stacks.learned.samples import samples_from_scenario
 
 CONFIG = LearnedStackConfig()
 

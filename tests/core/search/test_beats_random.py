@@ -18,7 +18,7 @@ SEEDS = tuple(range(10))
 BUDGET = 75  # the attack's budget
 BO_BUDGET = 25  # BO is the only algorithm whose overhead matters at CI scale
 BO_INITIAL_POINTS = 10
-CHEAP_ALGORITHMS = ("ga", "rs", "nes", "bandit")
+CHEAP_ALGORITHMS = ("ga", "simba", "nes", "bandit")
 
 
 @functools.cache

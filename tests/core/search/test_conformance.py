@@ -131,7 +131,7 @@ def test_configs_reject_a_zero_budget_naming_the_key(name: str, small_config: Sm
 
 def test_an_unknown_algorithm_name_lists_the_known_ones() -> None:
     with pytest.raises(
-        SearchError, match=r"unknown search algorithm 'cmaes' \(known: bo, ga, rs, nes, bandit, random\)"
+        SearchError, match=r"unknown search algorithm 'cmaes' \(known: bo, ga, simba, nes, bandit, random\)"
     ):
         make_search("cmaes", 12, np.random.default_rng(0))
 

@@ -53,7 +53,7 @@ def _key(perturbation: Perturbation) -> tuple[object, ...]:
     return perturbation.query_id, perturbation.algorithm, tuple(perturbation.delta.tolist())
 
 
-@pytest.mark.parametrize("name", ["bo", "ga", "nes", "random", "rs", "bandit"])
+@pytest.mark.parametrize("name", ["bo", "ga", "nes", "random", "simba", "bandit"])
 def test_every_number_of_lanes_asks_the_same_queries_under_the_same_ids(name: str, small_config: SmallConfig) -> None:
     one, one_batches, _ = _drive(name, small_config, lanes=1)
     three, three_batches, _ = _drive(name, small_config, lanes=3)

@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from advsim_ros.core.params import ParamsError
-from advsim_ros.core.search import ALGORITHM_NAMES, config_from_params, default_config, load_search_settings
+from advsim_ros.core.search import (
+    ALGORITHM_NAMES,
+    accept_algorithm,
+    canonical_algorithm,
+    config_from_params,
+    default_config,
+    load_search_settings,
+    make_search,
+)
+from advsim_ros.core.search.simba import Simba, SimbaConfig
 from advsim_ros.core.search.synthetic import TEST_FUNCTION_NAMES, make_test_function
 
 REPO = Path(__file__).resolve().parents[3]
@@ -38,11 +48,38 @@ def test_search_parameters_name_the_bad_key(tmp_path: Path) -> None:
         config_from_params("nes", {"samples": 7})
     broken = tmp_path / "search.yaml"
     broken.write_text("/search:\n  ros__parameters:\n    algorithm: cmaes\n", encoding="utf-8")
-    with pytest.raises(ParamsError, match=r"algorithm: 'cmaes' is not one of bo, ga, rs, nes, bandit, random"):
+    with pytest.raises(ParamsError, match=r"algorithm: 'cmaes' is not one of bo, ga, simba, nes, bandit, random"):
         load_search_settings(broken)
     broken.write_text("/scorer:\n  ros__parameters: {}\n", encoding="utf-8")
     with pytest.raises(ParamsError, match="no entry for node /search"):
         load_search_settings(broken)
+
+
+def test_simba_is_named_simba_and_its_old_name_rs_still_works_with_one_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    assert "simba" in ALGORITHM_NAMES
+    assert "rs" not in ALGORITHM_NAMES
+    assert isinstance(make_search("simba", 4, np.random.default_rng(0)), Simba)
+    with caplog.at_level(logging.WARNING):
+        assert isinstance(make_search("rs", 4, np.random.default_rng(0)), Simba)
+        assert accept_algorithm("rs") == "simba"
+    assert [record.getMessage() for record in caplog.records] == [
+        "search algorithm 'rs' is deprecated: use 'simba' (the same algorithm)"
+    ] * 2
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert canonical_algorithm("rs") == "simba"  # what was recorded under it: silently
+        assert accept_algorithm("simba") == canonical_algorithm("simba") == "simba"
+        assert accept_algorithm("bo") == "bo"
+    assert not caplog.records
+    old = tmp_path / "search.yaml"  # a parameters file of before the rename
+    old.write_text("/search:\n  ros__parameters:\n    algorithm: rs\n    rs: {step: 0.5}\n", encoding="utf-8")
+    with caplog.at_level(logging.WARNING):
+        settings = load_search_settings(old)
+    assert settings.algorithm == "simba"
+    assert settings.config == SimbaConfig(step=0.5)
+    assert len(caplog.records) == 2  # the section and the algorithm, one line each
 
 
 @pytest.mark.parametrize("name", ["ackley", "rastrigin"])

@@ -10,6 +10,7 @@ nothing.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import shutil
 from dataclasses import dataclass
@@ -24,9 +25,11 @@ from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.lidar.config import ResimConfig
 from advsim_ros.core.objective import scorer_settings_from_params
 from advsim_ros.core.search.driver import DriverConfig
-from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_from_params
+from advsim_ros.core.search.registry import ALGORITHM_NAMES, RENAMED_ALGORITHMS, config_from_params
 from advsim_ros.core.types import Scenario, ScenarioError
 from advsim_ros.io.bag import BagConfig, check_lidar_sweeps, lidar_topic_of, read_scenario_bag, summarize_bag
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,6 +143,9 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     scorer = {k: v for k, v in parameters["scorer"].items() if k in ("objective", "metrics")}
     scorer_settings_from_params(scorer, "/scorer")
     search = parameters["search"]
+    for old, new in RENAMED_ALGORITHMS.items():  # attack.run reads the old section as the new one
+        if old in search:
+            _log.warning("/search: the section %r of the parameters files is deprecated: name it %r", old, new)
     section(search, "", DriverConfig, "/search")
     if not options.replay_only:
         config_from_params(options.algorithm, search.get(options.algorithm, {}), f"/search {options.algorithm}")

@@ -20,8 +20,11 @@ from typing import Any
 
 from advsim_ros.attack.checks import Preflight
 from advsim_ros.attack.options import AttackError, AttackOptions, StackSpec
+from advsim_ros.contract.codec import ContractError
+from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.atomic import write_text_atomically
-from advsim_ros.core.journal import Journal
+from advsim_ros.core.closed_loop import ControllerConfig
+from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.ros.launcher import Launcher, NodeSpec
 from advsim_ros.ros.monitor import AttackMonitor
 
@@ -80,8 +83,6 @@ def follow(
     progress: Callable[[dict[str, Any]], None] | None,
 ) -> list[dict[str, Any]]:
     """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code)."""
-    from advsim_ros.attack.run import query_record
-
     clock = checked.window.clock(checked.scenario.frame_stamps_ns.tolist())
     decision_log = int(
         checked.scenario.frame_stamps_ns[checked.window.window_start_frame + checked.window.decision_index]
@@ -181,3 +182,32 @@ def _write_stack_graph(options: AttackOptions, monitor: AttackMonitor, final: bo
     if graph or final:
         write_text_atomically(options.out_dir.resolve() / "run" / STACK_GRAPH_FILE, json.dumps(graph, indent=1))
     return bool(graph) or final
+
+
+def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryRecord:
+    """The journal line of a finished query (plan moved to log time)."""
+    plan = executed = None
+    reacted: tuple[Any, ...] = ()
+    episode = finished.episode
+    offset = clock_offset(finished.perturbation.query_id)
+    if episode is not None and episode.decision_plan is not None:
+        try:
+            plan = plan_from_path(episode.decision_plan, offset)
+        except ContractError:
+            plan = None
+    if episode is not None and episode.executed is not None:
+        executed = episode.executed.to_executed(ControllerConfig().wheelbase, offset)
+    if episode is not None:
+        reacted = tuple(track.shifted(-offset).to_actor_track() for track in episode.reacted_actors)
+    perturbation = finished.perturbation
+    return QueryRecord(
+        query_id=perturbation.query_id,
+        algorithm=perturbation.algorithm,
+        actor_ids=tuple(perturbation.actor_ids),
+        delta=tuple(float(v) for v in perturbation.delta),
+        score=finished.score.as_dict(),
+        tracks=tuple(finished.tracks),
+        plan=plan,
+        executed=executed,
+        reacted=reacted,
+    )

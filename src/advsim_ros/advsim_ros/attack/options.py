@@ -12,6 +12,7 @@ from typing import Any
 
 from advsim_ros.adapters.profile import ProcessProfile, StackProfile, profile_from_mapping
 from advsim_ros.contract import topics
+from advsim_ros.core.search.registry import accept_algorithm, renamed_sections
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag import BagConfig
 from advsim_ros.ros.launcher import NodeSpec, python_module_command
@@ -253,6 +254,11 @@ class AttackOptions:
     bag_config: BagConfig | None = None  # --bag-params: the bag's topics and frames (None: params/bag.yaml's)
 
     def __post_init__(self) -> None:
+        # an algorithm under an old name ("rs"): one warning, then its name now, in --algo and in --param search.*
+        object.__setattr__(self, "algorithm", accept_algorithm(self.algorithm))
+        if "search" in self.parameter_overrides:
+            search = renamed_sections(self.parameter_overrides["search"], "--param search")
+            object.__setattr__(self, "parameter_overrides", {**self.parameter_overrides, "search": search})
         if self.queries < 1 and not self.replay_only:
             raise ScenarioError(f"--queries: must be at least 1, got {self.queries}")
         if self.actors < 1:

@@ -35,8 +35,8 @@ from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
-from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
-from advsim_ros.core.search.registry import config_from_params
+from advsim_ros.core.journal import Fingerprint, Journal
+from advsim_ros.core.search.registry import RENAMED_ALGORITHMS, config_from_params
 from advsim_ros.io.bag import bag_layout_json
 from advsim_ros.ros.launcher import (
     Launcher,
@@ -108,6 +108,11 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
                 options.algorithm: {"max_queries": options.queries},
             }
         }
+        search = overrides["/search"]["ros__parameters"]
+        filed = node_parameters(node_files(options.params, "search"), "search")
+        for old, new in RENAMED_ALGORITHMS.items():  # a params folder of before a rename: the section as named now
+            if new == options.algorithm and isinstance(filed.get(old), dict):  # (checks.preflight warns)
+                search[new] = {**filed[old], **filed.get(new, {}), **search[new]}
     player = overrides["/scenario_player"]["ros__parameters"]
     if options.reactive_actors:
         player["reactive_actors"] = True
@@ -358,36 +363,3 @@ def _graph_specs(
             )
         )
     return specs
-
-
-def query_record(finished: Any, clock_offset: Callable[[int], int]) -> QueryRecord:
-    """The journal line of a finished query (plan moved to log time)."""
-    from advsim_ros.contract.codec import ContractError
-    from advsim_ros.contract.plan import plan_from_path
-    from advsim_ros.core.closed_loop import ControllerConfig
-
-    plan = executed = None
-    reacted: tuple[Any, ...] = ()
-    episode = finished.episode
-    offset = clock_offset(finished.perturbation.query_id)
-    if episode is not None and episode.decision_plan is not None:
-        try:
-            plan = plan_from_path(episode.decision_plan, offset)
-        except ContractError:
-            plan = None
-    if episode is not None and episode.executed is not None:
-        executed = episode.executed.to_executed(ControllerConfig().wheelbase, offset)
-    if episode is not None:
-        reacted = tuple(track.shifted(-offset).to_actor_track() for track in episode.reacted_actors)
-    perturbation = finished.perturbation
-    return QueryRecord(
-        query_id=perturbation.query_id,
-        algorithm=perturbation.algorithm,
-        actor_ids=tuple(perturbation.actor_ids),
-        delta=tuple(float(v) for v in perturbation.delta),
-        score=finished.score.as_dict(),
-        tracks=tuple(finished.tracks),
-        plan=plan,
-        executed=executed,
-        reacted=reacted,
-    )

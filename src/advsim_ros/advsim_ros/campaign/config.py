@@ -44,7 +44,7 @@ from advsim_ros.attack.options import AttackOptions, StackSpec, default_params_d
 from advsim_ros.core.curation import CurationConfig, curate_windows, load_curation_config
 from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.objective import PRESET_NAMES
-from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.core.search.registry import ALGORITHM_NAMES, accept_algorithm
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag import BagConfig, bag_layout_json, bag_layout_of, load_bag_config
 
@@ -234,12 +234,17 @@ def _stacks(path: Path, value: Any) -> dict[str, Any]:
 def _algorithms(path: Path, value: Any) -> dict[str, int]:
     if not isinstance(value, dict) or not value:
         raise _fail(path, "algorithms", "expected a mapping of algorithm to query budget, e.g. {bo: 75}")
+    algorithms: dict[str, int] = {}
     for name, budget in value.items():
-        if name not in ALGORITHM_NAMES:
+        known = accept_algorithm(name) if isinstance(name, str) else name  # an old name: a warning, its name now
+        if known not in ALGORITHM_NAMES:
             raise _fail(path, f"algorithms.{name}", f"unknown algorithm (known: {', '.join(ALGORITHM_NAMES)})")
+        if known in algorithms:
+            raise _fail(path, f"algorithms.{name}", f"the same algorithm as {known!r}, named twice")
         if not isinstance(budget, int) or isinstance(budget, bool) or budget < 1:
             raise _fail(path, f"algorithms.{name}", f"the query budget must be a positive integer, got {budget!r}")
-    return {str(k): int(v) for k, v in value.items()}
+        algorithms[str(known)] = int(budget)
+    return algorithms
 
 
 def _bag_folder(path: Path, key: str, bag: Path) -> Path:

@@ -1,8 +1,10 @@
 """The campaign report: results.csv, transfer.csv, report.md and report.html with the paper's tables.
 
 AdvSim (Wang et al., CVPR 2021) reports original vs adversarial metrics per autonomy stack
-(Table 1), how found scenarios transfer between stacks (Table 3), and the effect of the number of
-perturbed actors (Table 4), the search algorithm and budget (Table 5) and the objective (Table 6).
+(Table 1), each stack against the standard learned one, paired scene by scene (Table 2,
+campaign.table2), how found scenarios transfer between stacks (Table 3), and the effect of the
+number of perturbed actors (Table 4), the search algorithm and budget (Table 5) and the objective
+(Table 6).
 Each table is made only when the campaign has that dimension, over the attacks that finished
 (status ok); a mean comes with a percentile-bootstrap 95 % interval, seeded so that the same
 results give the same report. Everything is written atomically: a reader never sees half a file.
@@ -15,110 +17,31 @@ import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
 from advsim_ros.campaign.report_html import GalleryItem, Rates, Section, Table, collision_plot, curve_plot, render_html
 from advsim_ros.campaign.results import COLUMNS, TRANSFER_COLUMNS, to_csv
+from advsim_ros.campaign.stats import (
+    DASH,
+    GROUP_METRICS,
+    LEVEL,
+    TABLE1_METRICS,
+    as_float,
+    bootstrap_mean,
+    cell,
+    level_order,
+    levels,
+    ok_rows,
+    truthy,
+)
+from advsim_ros.campaign.table2 import FAMILY_NOTE, STANDARD, applies, family_table, table2
 from advsim_ros.core.atomic import write_text_atomically
-
-RESAMPLES = 2000
-LEVEL = 0.95
-# (metric, column label, is a 0/1 collision flag shown as a rate in %): Table 1's columns
-TABLE1_METRICS: tuple[tuple[str, str, bool], ...] = (
-    ("collision_3s", "collision ≤3 s [%]", True),
-    ("collision_5s", "collision ≤5 s [%]", True),
-    ("l2_human_3s", "L2 3 s [m]", False),
-    ("l2_human_5s", "L2 5 s [m]", False),
-    ("lateral_acceleration", "lat. acc. [m/s²]", False),
-    ("jerk", "jerk [m/s³]", False),
-    ("detection_ap", "det. AP", False),
-    ("prediction_l2_3s", "pred. L2 3 s [m]", False),
-    ("prediction_l2_5s", "pred. L2 5 s [m]", False),
-)
-# Tables 4-6: the adversarial scenario's metrics per group
-GROUP_METRICS: tuple[tuple[str, str, bool], ...] = (
-    ("collision_5s", "adv. collision ≤5 s [%]", True),
-    ("l2_human_5s", "adv. L2 5 s [m]", False),
-    ("lateral_acceleration", "adv. lat. acc. [m/s²]", False),
-    ("jerk", "adv. jerk [m/s³]", False),
-)
-DASH = "–"
-
-
-class Estimate(NamedTuple):
-    """A mean with its bootstrap interval over ``n`` finite values (all NaN when n is 0)."""
-
-    mean: float
-    low: float
-    high: float
-    n: int
-
-
-def _float(value: Any) -> float:
-    """A cell as a float: None, '' (a CSV's NaN) and what does not parse are NaN."""
-    if isinstance(value, bool):
-        return float(value)
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
-
-
-def _truthy(value: Any) -> bool:
-    return value.strip().lower() in ("1", "true", "yes") if isinstance(value, str) else bool(value)
-
-
-def bootstrap_mean(values: Iterable[Any], seed: int = 0, resamples: int = RESAMPLES, level: float = LEVEL) -> Estimate:
-    """Mean and percentile-bootstrap interval of the finite values; its own generator, so a cell's interval
-    depends on the seed and its values only (not on which other cells the campaign has)."""
-    data = np.array([v for v in map(_float, values) if math.isfinite(v)], dtype=np.float64)
-    if data.size == 0:
-        return Estimate(math.nan, math.nan, math.nan, 0)
-    mean = float(data.mean())
-    if np.all(data == data[0]):  # n = 1 or all alike: every resample has this mean
-        return Estimate(float(data[0]), float(data[0]), float(data[0]), int(data.size))
-    rng = np.random.default_rng(seed)
-    chunk = max(1, 4_000_000 // data.size)  # bounded memory for large campaigns
-    means = np.concatenate([
-        data[rng.integers(0, data.size, size=(min(chunk, resamples - start), data.size))].mean(axis=1)
-        for start in range(0, resamples, chunk)
-    ])  # fmt: skip
-    low, high = np.percentile(means, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
-    return Estimate(mean, float(low), float(high), int(data.size))
-
-
-def _number(value: float) -> str:
-    if abs(value) < 5e-5:  # round-off of an exact zero (a plan that matches the log) reads as 0
-        return "0"
-    return f"{value:.0f}" if abs(value) >= 100 else f"{value:.3g}"
-
-
-def cell(estimate: Estimate, percent: bool = False) -> str:
-    """'mean [low, high]' (a 0/1 rate in %), '–' when no value was finite."""
-    if estimate.n == 0:
-        return DASH
-    scale, show = (100.0, (lambda v: f"{v:.1f}")) if percent else (1.0, _number)
-    return f"{show(estimate.mean * scale)} [{show(estimate.low * scale)}, {show(estimate.high * scale)}]"
-
-
-def _ok(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    return [row for row in rows if row.get("status") == "ok"]
-
-
-def _order(value: str) -> tuple[int, float, str]:
-    """Numbers in numeric order (budget 50 before 200), then text."""
-    number = _float(value)
-    return (0, number, "") if math.isfinite(number) else (1, 0.0, value)
-
-
-def _levels(rows: Iterable[Mapping[str, Any]], key: str) -> list[str]:
-    return sorted({str(row.get(key, "")) for row in rows}, key=_order)
 
 
 def _sum_hours(rows: Iterable[Mapping[str, Any]], key: str) -> float:
-    return sum(v for v in (_float(row.get(key)) for row in rows) if math.isfinite(v)) / 3600.0
+    return sum(v for v in (as_float(row.get(key)) for row in rows) if math.isfinite(v)) / 3600.0
 
 
 def table1(ok: Sequence[Mapping[str, Any]], stacks: Sequence[str], seed: int) -> tuple[Table, Rates]:
@@ -147,7 +70,7 @@ def excluded_table(ok: Sequence[Mapping[str, Any]]) -> Table | None:
     shown = [
         (str(row.get("attack")), str(row.get("stack")), str(row.get("excluded") or "").replace(";", ", "))
         for row in ok
-        if _float(row.get("adversarial_collision_5s")) > 0.5 and not _truthy(row.get("failure"))
+        if as_float(row.get("adversarial_collision_5s")) > 0.5 and not truthy(row.get("failure"))
     ]
     return Table(("attack", "stack", "not counted because"), tuple(shown)) if shown else None
 
@@ -162,7 +85,7 @@ def _labelled(row: Mapping[str, Any]) -> Mapping[str, Any]:
 def loop_table(closed: Sequence[Mapping[str, Any]], seed: int) -> Table:
     """Per stack and scenario: collision rates of the driven ego and of its decision plan, and the closest gap."""
     body = []
-    for stack in _levels(closed, "stack"):
+    for stack in levels(closed, "stack"):
         mine = [row for row in closed if str(row.get("stack")) == stack]
         for scenario in ("original", "adversarial"):
             driven = bootstrap_mean((row.get(f"{scenario}_collision_5s") for row in mine), seed)
@@ -175,9 +98,9 @@ def loop_table(closed: Sequence[Mapping[str, Any]], seed: int) -> Table:
 
 def table3(ok: Sequence[Mapping[str, Any]], transfers: Sequence[Mapping[str, Any]], seed: int) -> Table:
     """Source stack × target stack: collision rate (%) up to 5 s of the source's found scenarios on the target."""
-    done = _ok(transfers)
-    sources = _levels(done, "source_stack")
-    targets = sorted({*_levels(done, "target_stack"), *sources}, key=_order)
+    done = ok_rows(transfers)
+    sources = levels(done, "source_stack")
+    targets = sorted({*levels(done, "target_stack"), *sources}, key=level_order)
     rows = []
     for source in sources:
         cells = [source]
@@ -197,8 +120,8 @@ def grouped(
     rows: Sequence[Mapping[str, Any]], keys: Sequence[str], seed: int, labels: Sequence[str] | None = None
 ) -> Table:
     """Tables 4-6: the adversarial metrics of the finished attacks per value of ``keys`` (levels with none: '–')."""
-    ok = _ok(rows)
-    groups = sorted({tuple(str(row.get(k, "")) for k in keys) for row in rows}, key=lambda g: [_order(v) for v in g])
+    ok = ok_rows(rows)
+    groups = sorted({tuple(str(row.get(k, "")) for k in keys) for row in rows}, key=lambda g: list(map(level_order, g)))
     body = []
     for group in groups:
         mine = [row for row in ok if tuple(str(row.get(k, "")) for k in keys) == group]
@@ -223,22 +146,15 @@ def median_curves(
     found: dict[str, list[np.ndarray]] = {}
     for key, curve in curves.items():
         if key in algorithm and len(curve):
-            found.setdefault(algorithm[key], []).append(np.array([_float(v) for v in curve], dtype=np.float64))
+            found.setdefault(algorithm[key], []).append(np.array([as_float(v) for v in curve], dtype=np.float64))
     medians = {}
-    for name in sorted(found, key=_order):
+    for name in sorted(found, key=level_order):
         stacked = np.full((len(found[name]), max(c.size for c in found[name])), np.nan)
         for i, values in enumerate(found[name]):
             stacked[i, : values.size] = values
         median = np.array([np.median(col[np.isfinite(col)]) if np.isfinite(col).any() else np.nan for col in stacked.T])
         medians[name] = (median, len(found[name]))
     return medians
-
-
-def _markdown_table(table: Table) -> str:
-    def line(cells: Sequence[str]) -> str:
-        return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
-
-    return "\n".join([line(table.header), line(["---"] * len(table.header)), *(line(r) for r in table.rows)])
 
 
 def render_markdown(
@@ -252,7 +168,7 @@ def render_markdown(
         if section.note:
             parts += [section.note, ""]
         if section.table is not None:
-            parts += [_markdown_table(section.table), ""]
+            parts += [section.table.markdown(), ""]
         if section.figure is not None:
             parts += [f"![{section.figure_alt}]({section.figure.name})", ""]
     if gallery:
@@ -269,8 +185,8 @@ def _sections(
 ) -> list[Section]:  # fmt: skip
     """The report's sections, the figures saved on the way (their paths added to ``written``)."""
     rows = [_labelled(row) for row in rows]  # closed-loop attacks are their stack's own rows ("stack (closed loop)")
-    ok = _ok(rows)
-    stacks = _levels(rows, "stack")
+    ok = ok_rows(rows)
+    stacks = levels(rows, "stack")
     by_stack = ["stack"] if len(stacks) > 1 else []
     sections: list[Section] = []
     if ok:
@@ -295,7 +211,15 @@ def _sections(
                                 "loop), and of the plan it made at the decision frame (open loop, the paper's), on the "
                                 "same original and adversarial scenarios; the closest gap it came to an actor [m].",
                                 loop_table(closed, seed)))  # fmt: skip
-    if _ok(transfers):
+    if applies(ok):
+        sections.append(Section("table2", "Table 2: each stack against the standard stack, scene by scene",
+                                f"Mean [bootstrap {LEVEL:.0%} interval] per stack on the original and the adversarial "
+                                f"scenes; the last column: the stack's adversarial collision rate minus the standard "
+                                f"stack's ({STANDARD}) on the scenes both were attacked on, the same way "
+                                "(percentage points).",
+                                table2(ok, seed)))  # fmt: skip
+        sections.append(Section("table2-families", "Table 2 per scene family", FAMILY_NOTE, family_table(ok)))
+    if ok_rows(transfers):
         sections.append(Section("table3", "Table 3: transfer between stacks",
                                 "Collision rate up to 5 s [%] of the source stack's found scenarios replayed on the "
                                 "target stack (n replays); a diagonal without replays is the attacks' own result.",
@@ -326,13 +250,13 @@ def _sections(
 
 
 def _header(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    ok = _ok(rows)
-    flaky = sum(1 for row in ok if _truthy(row.get("flaky")))
+    ok = ok_rows(rows)
+    flaky = sum(1 for row in ok if truthy(row.get("flaky")))
     return [
         f"attacks: {len(ok)} done, {len(rows) - len(ok)} failed ({len(rows)} in all); "
         f"{flaky} flaky (the best query did not reproduce when re-run)",
         f"time: {_sum_hours(rows, 'wall_s'):.2f} wall-hours, {_sum_hours(rows, 'cpu_s'):.2f} CPU-hours",
-        *(f"{key}s: {', '.join(_levels(rows, key)) or DASH}" for key in ("stack", "algorithm", "objective")),
+        *(f"{key}s: {', '.join(levels(rows, key)) or DASH}" for key in ("stack", "algorithm", "objective")),
     ]
 
 

@@ -31,6 +31,14 @@ class Table:
     header: tuple[str, ...]
     rows: tuple[tuple[str, ...], ...]
 
+    def markdown(self) -> str:
+        """The table in Markdown (no newline at the end); a '|' in a cell escaped."""
+
+        def line(cells: Sequence[str]) -> str:
+            return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+        return "\n".join([line(self.header), line(["---"] * len(self.header)), *(line(r) for r in self.rows)])
+
 
 @dataclass(frozen=True)
 class Section:

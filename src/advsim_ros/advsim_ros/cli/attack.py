@@ -19,11 +19,20 @@ from advsim_ros.attack.follow import stack_log_tails
 from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
-from advsim_ros.core.search.registry import ALGORITHM_NAMES
+from advsim_ros.core.search.registry import ALGORITHM_NAMES, RENAMED_ALGORITHMS
 from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
 
+
+class _AlgorithmNames(tuple[str, ...]):
+    """--algo's choices: the registry's names (shown in the help) and old names (AttackOptions warns, renames)."""
+
+    def __contains__(self, name: object) -> bool:
+        return super().__contains__(name) or name in RENAMED_ALGORITHMS
+
+
+ALGORITHM_CHOICES = _AlgorithmNames(ALGORITHM_NAMES)
 # the demo's scene: a lead car braking ahead, in which 20 BO queries find a collision of the reference stack
 DEMO_FAMILY, DEMO_SEED = "lead_brake", 1
 
@@ -36,7 +45,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     attack.add_argument("bag", type=Path, help="scenario bag (rosbag2 folder), e.g. from `advsim convert`")
     add_bag_params_option(attack)
     add_stack_arguments(attack)
-    attack.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
+    attack.add_argument("--algo", default="bo", choices=ALGORITHM_CHOICES, help="search algorithm (default bo)")
     attack.add_argument("--queries", type=int, default=75, help="search queries (default 75, the paper's BO budget)")
     attack.add_argument("--actors", type=int, default=1, help="actors perturbed at once (default 1)")
     attack.add_argument("--seed", type=int, default=0, help="seed of the search (default 0)")
@@ -79,7 +88,7 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
     )
     demo.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     demo.add_argument("--queries", type=int, default=20, help="search queries (default 20)")
-    demo.add_argument("--algo", default="bo", choices=ALGORITHM_NAMES, help="search algorithm (default bo)")
+    demo.add_argument("--algo", default="bo", choices=ALGORITHM_CHOICES, help="search algorithm (default bo)")
     demo.add_argument(
         "--seed", type=int, default=DEMO_SEED, help=f"seed of the synthetic log and the search (default {DEMO_SEED})"
     )
@@ -351,5 +360,5 @@ def _run_demo(args: argparse.Namespace) -> int:
         queries=args.queries,
         seed=args.seed,
     )
-    print(f"demo: attacking the reference stack on {bag} with {args.algo}, {args.queries} queries")
+    print(f"demo: attacking the reference stack on {bag} with {options.algorithm}, {args.queries} queries")
     return _attack_and_report(options)

@@ -1,4 +1,5 @@
-"""`advsim campaign` (many attacks on Ray, the paper's tables) and `advsim regress` (a suite as a CI gate)."""
+"""`advsim campaign` (many attacks on Ray, the paper's tables), `advsim campaign-table2` (Table 2 from campaign
+folders) and `advsim regress` (a suite as a CI gate)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,16 @@ def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.Argume
     campaign.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start one here)")
     add_bag_params_option(campaign)
     campaign.set_defaults(run=_run_campaign)
+
+    table2 = subparsers.add_parser(
+        "campaign-table2",
+        help="Table 2 (each stack against the standard learned stack, per scene family) from campaign folders",
+    )
+    table2.add_argument(
+        "out", type=Path, nargs="+", help="campaign output folders (several: pooled, each paired within its own)"
+    )
+    table2.add_argument("-o", "--output", type=Path, default=None, help="also write the Markdown here")
+    table2.set_defaults(run=_run_table2)
 
     regress = subparsers.add_parser(
         "regress", help="replay every scenario of a regression suite on a stack; non-zero exit when any fails"
@@ -85,6 +96,17 @@ def _run_campaign(args: argparse.Namespace) -> int:
     print(f"report: {written['report_md']}  {written['report_html']}  results: {written['results_csv']}")
     print(f"regression suite: {written['suite']} ({written['suite_size']} scenarios)")
     return 1 if errors else 0
+
+
+def _run_table2(args: argparse.Namespace) -> int:
+    from advsim_ros.campaign.table2 import campaign_rows, table2_markdown
+    from advsim_ros.core.atomic import write_text_atomically
+
+    text = table2_markdown(campaign_rows(args.out))  # a folder without a journal: one line (CampaignError)
+    print(text, end="")
+    if args.output is not None:
+        write_text_atomically(args.output, text)
+    return 0
 
 
 def _stack_entry(args: argparse.Namespace) -> Any:

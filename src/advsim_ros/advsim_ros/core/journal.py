@@ -25,6 +25,7 @@ import numpy as np
 
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.closed_loop import ExecutedTrajectory
+from advsim_ros.core.renamed import canonical_algorithm
 from advsim_ros.core.types import ActorClass, ActorTrack, Plan, ScenarioError
 
 JOURNAL_VERSION = 1
@@ -139,7 +140,7 @@ class QueryRecord:
     def from_json(values: Mapping[str, Any]) -> QueryRecord:
         return QueryRecord(
             query_id=int(values["query_id"]),
-            algorithm=str(values["algorithm"]),
+            algorithm=canonical_algorithm(str(values["algorithm"])),  # journals of before a rename: its name now
             actor_ids=tuple(str(a) for a in values["actor_ids"]),
             delta=tuple(float(v) for v in values["delta"]),
             score=dict(values["score"]),
@@ -148,6 +149,14 @@ class QueryRecord:
             executed=_executed_from_json(values.get("executed")),
             reacted=tuple(_track_from_json(track) for track in values.get("reacted", ())),
         )
+
+
+def _renamed(fingerprint: Fingerprint) -> Fingerprint:
+    """A recorded fingerprint with its algorithm as it is named now (a journal of SimBA as "rs" resumes as "simba")."""
+    algorithm = fingerprint.values.get("algorithm")
+    if not isinstance(algorithm, str) or canonical_algorithm(algorithm) == algorithm:
+        return fingerprint
+    return Fingerprint({**fingerprint.values, "algorithm": canonical_algorithm(algorithm)})
 
 
 class Journal:
@@ -172,7 +181,7 @@ class Journal:
         lines = path.read_bytes().split(b"\n")
         try:
             header = json.loads(lines[0])
-            recorded = Fingerprint(header["fingerprint"])
+            recorded = _renamed(Fingerprint(header["fingerprint"]))
         except (ValueError, KeyError, TypeError):
             raise JournalError(
                 f"{path}: not an attack journal (unreadable header); use another output folder"

@@ -42,7 +42,13 @@ from advsim_ros.core.feasibility.projection import MAX_JOINT_CHECKED, project
 from advsim_ros.core.feasibility.pruning import COARSE_STRIDE, KINEMATIC_CHECKS, PruningCounts
 from advsim_ros.core.feasibility.reference import ActorReference, fit_reference
 from advsim_ros.core.feasibility.rollout import PerturbedTrajectory, perturbation_to_trajectory
-from advsim_ros.core.feasibility.selection import ActorReport, ActorSelection, rank_actors, select_actors
+from advsim_ros.core.feasibility.selection import (
+    ActorReport,
+    ActorSelection,
+    TooFewActorsError,
+    rank_actors,
+    select_actors,
+)
 from advsim_ros.core.feasibility.window import STATIC_SPAN, Window, is_standing
 
 __all__ = [
@@ -62,6 +68,7 @@ __all__ = [
     "PerturbedTrajectory",
     "PerturberConfig",
     "PruningCounts",
+    "TooFewActorsError",
     "Window",
     "WindowObstacles",
     "actor_window_boxes",

@@ -33,6 +33,14 @@ class ActorReport:
     fit_rmse: float | None  # bicycle-model fit of the logged track [m]
 
 
+class TooFewActorsError(InfeasibleError):
+    """select_actors found fewer perturbable actors than asked; ``reports`` says what became of every actor."""
+
+    def __init__(self, message: str, reports: tuple[ActorReport, ...]) -> None:
+        super().__init__(message)
+        self.reports = reports
+
+
 @dataclass(frozen=True, eq=False)
 class ActorSelection:
     """The actors to perturb in a window, their feasible sets (delta block order) and a report on every actor."""
@@ -98,7 +106,8 @@ def select_actors(
     Actors are tried closest first; an actor of a class not in perturbable_classes, unlabelled at
     the window start or labelled in fewer than min_observed_steps frames is skipped, and with
     several actors one is added only if a collision-free combination with those already chosen
-    exists. Raises InfeasibleError (its message lists every actor tried) if fewer are found.
+    exists. Raises TooFewActorsError, an InfeasibleError whose message lists every actor tried and
+    whose reports say why, if fewer are found.
     """
     if drivable is None:
         drivable = drivable_area_for(scenario, DrivableConfig())  # a stored area (the nodes') wins
@@ -145,7 +154,7 @@ def select_actors(
     selection = ActorSelection(window=window, sets=tuple(chosen), reports=tuple(reports))
     if len(chosen) < config.num_actors:
         lines = "; ".join(f"{r.actor_id}: {r.reason}" for r in reports) or "no actor is labelled in the window"
-        raise InfeasibleError(
+        raise TooFewActorsError(
             f"scenario {scenario.scenario_id} window at frame {window.start_frame}: found {len(chosen)} of "
             f"{config.num_actors} perturbable actors ({lines})",
             tuple(reports),

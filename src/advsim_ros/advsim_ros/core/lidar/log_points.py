@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advsim_ros.core.lidar.assets import align_frames
+from advsim_ros.core.lidar.alignment import align_frames
 from advsim_ros.core.lidar.background import SweepDepth
 from advsim_ros.core.lidar.boxes import BoolArray, to_box_frame, track_pose_at
 from advsim_ros.core.lidar.config import ResimConfig

@@ -77,7 +77,7 @@ class SearchAlgorithm(ABC, Generic[ConfigT]):
     (the values of a complete batch). They draw every random number from ``self.rng``.
     """
 
-    name: ClassVar[str]  # the registry name ("bo", "ga", "rs", "nes", "bandit", "random")
+    name: ClassVar[str]  # the registry name ("bo", "ga", "simba", "nes", "bandit", "random")
 
     def __init__(self, config: ConfigT, dimension: int, rng: np.random.Generator) -> None:
         if dimension < 1:

@@ -1,13 +1,19 @@
 """Search algorithms by name, their configs, and the search parameters file.
 
-Names: "bo" (GP-UCB), "ga" (GenAttack-style GA), "rs" (SimBA), "nes" (NES),
+Names: "bo" (GP-UCB), "ga" (GenAttack-style GA), "simba" (SimBA), "nes" (NES),
 "bandit" (Bandit-TD), "random" (uniform sampling, the baseline). Modules are imported on
 first use, so that choosing "ga" never pays for importing torch and BoTorch.
+
+SimBA was once named "rs": a name a user gives (`--algo`, a campaign's `algorithms`, a
+parameters file) is still accepted under its old name with one deprecation warning
+(``accept_algorithm``); what was recorded under it (attack and campaign journals) reads as the
+new name silently (``core.renamed.canonical_algorithm``).
 """
 
 from __future__ import annotations
 
 import importlib
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -16,18 +22,20 @@ from typing import Any
 import numpy as np
 
 from advsim_ros.core.params import ParamsError, config_from_mapping, load_node_params
+from advsim_ros.core.renamed import RENAMED_ALGORITHMS
 from advsim_ros.core.search.base import SearchAlgorithm, SearchConfig, SearchError
 from advsim_ros.core.search.driver import DriverConfig
 
-ALGORITHM_NAMES = ("bo", "ga", "rs", "nes", "bandit", "random")
+ALGORITHM_NAMES = ("bo", "ga", "simba", "nes", "bandit", "random")
 SEARCH_NODE_NAME = "search"  # node whose parameters params/search.yaml holds
+_log = logging.getLogger(__name__)
 
 # name -> (module.algorithm class, module.config class); a config lives apart from a heavy algorithm
 # (bo: torch, BoTorch) so that reading and checking settings does not import it
 _ENTRIES: dict[str, tuple[str, str]] = {
     "bo": ("advsim_ros.core.search.bo.BayesianOptimization", "advsim_ros.core.search.bo_config.BoConfig"),
     "ga": ("advsim_ros.core.search.ga.GeneticAlgorithm", "advsim_ros.core.search.ga.GaConfig"),
-    "rs": ("advsim_ros.core.search.simba.Simba", "advsim_ros.core.search.simba.SimbaConfig"),
+    "simba": ("advsim_ros.core.search.simba.Simba", "advsim_ros.core.search.simba.SimbaConfig"),
     "nes": ("advsim_ros.core.search.nes.Nes", "advsim_ros.core.search.nes.NesConfig"),
     "bandit": ("advsim_ros.core.search.bandit_td.BanditTd", "advsim_ros.core.search.bandit_td.BanditConfig"),
     "random": (
@@ -37,20 +45,32 @@ _ENTRIES: dict[str, tuple[str, str]] = {
 }
 
 
+def accept_algorithm(name: str) -> str:
+    """The registry name of an algorithm a user named: an old name logs one deprecation warning naming the new one."""
+    renamed = RENAMED_ALGORITHMS.get(name)
+    if renamed is None:
+        return name
+    _log.warning("search algorithm %r is deprecated: use %r (the same algorithm)", name, renamed)
+    return renamed
+
+
 def _imported(dotted: str) -> Any:
     module_name, _, attribute = dotted.rpartition(".")
     return getattr(importlib.import_module(module_name), attribute)
 
 
 def _checked(name: str) -> tuple[str, str]:
+    name = accept_algorithm(name)
     if name not in _ENTRIES:
         raise SearchError(f"unknown search algorithm {name!r} (known: {', '.join(ALGORITHM_NAMES)})")
     return _ENTRIES[name]
 
 
 def _entry(name: str) -> tuple[type[SearchAlgorithm[Any]], type[SearchConfig]]:
-    algorithm: type[SearchAlgorithm[Any]] = _imported(_checked(name)[0])
-    return algorithm, config_type(name)
+    algorithm_path, config_path = _checked(name)
+    algorithm: type[SearchAlgorithm[Any]] = _imported(algorithm_path)
+    config: type[SearchConfig] = _imported(config_path)
+    return algorithm, config
 
 
 def config_type(name: str) -> type[SearchConfig]:
@@ -94,9 +114,10 @@ class SearchSettings:
 
 def load_search_settings(path: Path, algorithm: str | None = None) -> SearchSettings:
     """Read params/search.yaml (node /search); `algorithm` overrides the file's choice."""
-    parameters = load_node_params(path, SEARCH_NODE_NAME)
+    parameters = renamed_sections(load_node_params(path, SEARCH_NODE_NAME), f"{path} /{SEARCH_NODE_NAME}")
     context = f"{path} /{SEARCH_NODE_NAME}"
     name = parameters.get("algorithm") if algorithm is None else algorithm
+    name = accept_algorithm(name) if isinstance(name, str) else name
     if not isinstance(name, str) or name not in ALGORITHM_NAMES:
         raise ParamsError(f"{context}.algorithm: {name!r} is not one of {', '.join(ALGORITHM_NAMES)}")
     seed = parameters.get("seed", 0)
@@ -108,3 +129,21 @@ def load_search_settings(path: Path, algorithm: str | None = None) -> SearchSett
         raise ParamsError(f"{context}: unknown parameter(s) {unknown}")
     section = parameters.get(name, {})
     return SearchSettings(name, config_from_params(name, section, f"{context}.{name}"), seed)
+
+
+def renamed_sections(parameters: Mapping[str, Any], context: str) -> dict[str, Any]:
+    """The search node's parameters with an algorithm's section under an old name moved to its new name.
+
+    Each old section found logs one deprecation warning; values under the new name win over the old
+    section's."""
+    moved = dict(parameters)
+    for old, new in RENAMED_ALGORITHMS.items():
+        if old in moved:
+            _log.warning("%s: the section %r is deprecated: name it %r (the same algorithm)", context, old, new)
+            section, newer = moved.pop(old), moved.get(new)
+            moved[new] = (
+                {**section, **newer}
+                if isinstance(section, Mapping) and isinstance(newer, Mapping)
+                else (section if newer is None else newer)
+            )
+    return moved

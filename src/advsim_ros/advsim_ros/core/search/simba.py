@@ -31,7 +31,7 @@ class SimbaConfig(SearchConfig):
 class Simba(SearchAlgorithm[SimbaConfig]):
     """Greedy coordinate search with random coordinate order."""
 
-    name = "rs"
+    name = "simba"
 
     def __init__(self, config: SimbaConfig, dimension: int, rng: np.random.Generator) -> None:
         super().__init__(config, dimension, rng)

@@ -52,7 +52,7 @@ from advsim_ros.io.bag import read_scenario_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
-from advsim_ros.stacks.learned.train import TrainingData, samples_from_scenario
+from advsim_ros.stacks.learned.samples import TrainingData, samples_from_scenario
 
 SPLITS = ("train", "validation", "test", "excluded")
 INDEX_NAME = "index.json"
