@@ -4,4 +4,5 @@
 - ``plans``    a stack's answer (timed or spatial poses, any frame) as the contract's plan
 - ``messages`` parsers of the stacks' own plan messages, builders of the pose inputs they read
 - ``timing``   which plan of a timer-driven stack answers which sweep
+- ``bridge``   what the stack_adapter node relays and converts for a profile, and the contract answers it makes
 """

@@ -6,9 +6,9 @@ query's tracks are there, in whatever order they arrive. The sweep keeps the log
 frame and fields, carries the request's sim stamp and goes to the player (/advsim/rendered_points),
 which hands it to the stack when the stack is ready for it: frames are rendered ahead while the
 stack plans. In closed loop a request may place the ego away from where it was logged: beyond
-render_distance / render_yaw the sweep is rendered from the model at that pose
-(core.lidar.novel_view) instead of re-simulated from the logged sweep. With reactive actors a
-request names the actors that left their tracks and where they are: they are placed there.
+render_distance / render_yaw the sweep is rendered from the model at that pose (core.lidar.novel_view)
+instead of re-simulated from the logged sweep (both in core.lidar.query.frame_sweep). With reactive
+actors a request names the actors that left their tracks and where they are: they are placed there.
 """
 
 from __future__ import annotations
@@ -17,19 +17,16 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from advsim_ros.contract import topics
 from advsim_ros.contract.protocol import FrameRequestRecord, frame_request_from_msg
 from advsim_ros.contract.scenario import cloud_msg
 from advsim_ros.contract.tracks import track_array_from_msg
 from advsim_ros.core.lidar.config import ResimConfig, ResimNodeConfig
-from advsim_ros.core.lidar.novel_view import render_from_model
-from advsim_ros.core.lidar.query import query_sweep, world_rng
+from advsim_ros.core.lidar.query import frame_sweep
 from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.memory import release_freed_memory
 from advsim_ros.core.reactive import with_overrides
-from advsim_ros.core.types import ActorTrack, FloatArray, ScenarioError, Sweep, replace_actors
+from advsim_ros.core.types import ActorTrack, ScenarioError
 from advsim_ros.io.cache import cache_root
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros.graph_node import run_node
@@ -92,41 +89,18 @@ class LidarResim(ScenarioNode):
         ready = [request for request in self.waiting if request.query_id in self.tracks]
         self.waiting = [request for request in self.waiting if request.query_id not in self.tracks]
         for request in ready:
-            frame = request.log_frame - self.first_frame
-            stamp = int(self.scenario.frame_stamps_ns[frame])
-            logged = self.sweeps.get(stamp)
+            frame = request.log_frame - self.first_frame  # in the window's own numbering
             moved = self.tracks[request.query_id]
             if request.reacted_actors:  # reactive actors away from their tracks: one state each, at this frame
+                stamp = int(self.scenario.frame_stamps_ns[frame])
                 reacted = (track.shifted(stamp - request.sim_stamp_ns) for track in request.reacted_actors)
                 moved = with_overrides(moved, tuple(track.to_actor_track() for track in reacted))
-            logged_pose = self.scenario.ego.poses[frame]
-            config = self.config
-            if logged is None or moved_away(
-                request.world_T_ego, logged_pose, config.render_distance, config.render_yaw
-            ):
-                # closed loop: the sweep from where the ego drove (or of a frame the log has no sweep of)
-                sensor_pose = request.world_T_ego @ self.scenario.ego_T_sensor
-                points = self._render(sensor_pose, stamp, moved)
-                out = Sweep(request.sim_stamp_ns, self.scenario.sweeps[0].frame_id, points, sensor_pose)
-            else:
-                points = query_sweep(self.model, self.scenario, logged, request.world_T_ego, moved, self.config.seed)
-                out = Sweep(request.sim_stamp_ns, logged.frame_id, points, logged.sensor_pose)
+            out = frame_sweep(
+                self.model, self.scenario, self.sweeps, frame, request.sim_stamp_ns, request.world_T_ego,
+                moved, self.config,
+            )  # fmt: skip
             self.publish_sweep(cloud_msg(out))
             self.trace("rendered", request.query_id, request.frame_index)
-
-    def _render(self, sensor_pose: FloatArray, stamp_ns: int, moved: tuple[ActorTrack, ...]) -> np.ndarray:
-        if self.model is None:
-            raise ScenarioError("closed loop: a sweep must be rendered from the model, and none was built")
-        world = replace_actors(self.scenario.actors, moved)
-        rng = world_rng(self.config.seed, moved, stamp_ns)
-        return render_from_model(self.model, self.scenario, sensor_pose, world, stamp_ns, rng)
-
-
-def moved_away(world_T_ego: FloatArray, logged: FloatArray, distance: float, yaw: float) -> bool:
-    """Whether the ego is further from its logged pose than the re-simulation of the logged sweep allows."""
-    offset = float(np.linalg.norm(world_T_ego[:2, 3] - logged[:2, 3]))
-    turned = abs(float(np.arctan2(world_T_ego[1, 0], world_T_ego[0, 0]) - np.arctan2(logged[1, 0], logged[0, 0])))
-    return offset > distance or min(turned, 2 * np.pi - turned) > yaw
 
 
 def main() -> None:

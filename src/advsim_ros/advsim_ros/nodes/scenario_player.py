@@ -14,24 +14,22 @@ import queue
 import threading
 from typing import Any
 
-import numpy as np
 import rclpy
 
 from advsim_ros.contract import codec, topics
-from advsim_ros.contract.protocol import episode_msg, frame_request_msg
-from advsim_ros.contract.scenario import road_map_msg, scenario_info_msg
-from advsim_ros.contract.spatial import odometry_msg, odometry_msgs, tf_message
+from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.tracks import track_array_from_msg
-from advsim_ros.core.closed_loop import ControllerConfig, initial_state, yaw_rate_of
+from advsim_ros.core.closed_loop import ControllerConfig
 from advsim_ros.core.reactive import IdmConfig
-from advsim_ros.core.types import ActorTrack, Scenario
+from advsim_ros.core.types import ActorTrack
 from advsim_ros.io.bag.write import sensor_frame_of
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros import lockstep
-from advsim_ros.ros.closed_loop import ClosedLoopSetup, ReactiveSetup, loop_frames
+from advsim_ros.ros.closed_loop import closed_loop_setup
 from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.identity import RUN_MARKER, run_membership
 from advsim_ros.ros.params import declare_config
+from advsim_ros.ros.player import latch_scenario, player_inputs, player_outputs
 
 
 class ScenarioPlayer(ScenarioNode):
@@ -50,43 +48,13 @@ class ScenarioPlayer(ScenarioNode):
         ]
         first = int(scenario.frame_stamps_ns[frames.start])
         sensor_frame = sensor_frame_of(scenario, bag)
-        self.latched = [
-            self.latch(topics.TF_STATIC, tf_message(first, bag.ego_frame, sensor_frame, scenario.ego_T_sensor)),
-            self.latch(
-                topics.SCENARIO_INFO, scenario_info_msg(scenario, bag.world_frame, bag.ego_frame, sensor_frame, "")
-            ),
-        ]
-        if scenario.road_map is not None:
-            self.latched.append(self.latch(topics.MAP, road_map_msg(scenario.road_map, first, bag.world_frame)))
-        self.closed_loop = self._closed_loop_setup(scenario, frames, odometry) if self.config.loop == "closed" else None
-        publish_episode = self.publisher(topics.EPISODE)
-        publish_request = self.publisher(topics.FRAME_REQUEST)
-        self.outputs = lockstep.Outputs(
-            clock=self.publisher(topics.CLOCK),
-            tf=self.publisher(topics.TF),
-            odometry=self.publisher(topics.ODOM),
-            lidar=self.publisher(topics.LIDAR),
-            frame_request=lambda r: publish_request(frame_request_msg(r, bag.world_frame, self.run_id)),
-            episode=lambda e, d, p: publish_episode(episode_msg(e, self.run_id, d, p)),
-            tf_message=lambda stamp, pose: tf_message(stamp, bag.world_frame, bag.ego_frame, pose),
-            trace=self.trace,
-            odometry_of=lambda stamp, pose, state: codec.encode(
-                odometry_msg(
-                    stamp,
-                    bag.world_frame,
-                    bag.ego_frame,
-                    pose,
-                    np.array([state.speed, 0.0, 0.0]),
-                    yaw_rate_of(state.speed, state.steer, self.controller.wheelbase),
-                )
-            ),
-        )
-        arrivals = [lockstep.StampedArrivals() for _ in range(5)]
-        self.inputs = lockstep.Inputs(*arrivals)
-        for topic, stream in zip(
-            (topics.RENDERED, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS, topics.RELAYED), arrivals, strict=True
-        ):
-            self.subscribe(topic, stream.add, raw=True)
+        self.latched = latch_scenario(self, scenario, bag.world_frame, bag.ego_frame, sensor_frame, first)
+        self.closed_loop = None
+        if self.config.loop == "closed":  # the drive after the decision
+            idm = self.idm if self.config.reactive_actors else None
+            self.closed_loop = closed_loop_setup(scenario, frames, odometry, self.window, self.controller, idm)
+        self.outputs = player_outputs(self, bag.world_frame, bag.ego_frame, self.controller)
+        self.inputs = player_inputs(self)
         names = lockstep.StackNames.from_pairs(self.config.stack_topics)
         self.stack_names = names
         membership = run_membership()
@@ -109,27 +77,6 @@ class ScenarioPlayer(ScenarioNode):
             self.moved = {q: tracks for q, tracks in self.moved.items() if q >= query_id - 1}
             self.moved[query_id] = track_array_from_msg(message).actor_tracks()  # before the query is queued
         self.queries.put(query_id)
-
-    def _closed_loop_setup(self, scenario: Scenario, frames: range, odometry: list[Any]) -> ClosedLoopSetup:
-        """The drive after the decision: from the logged ego there, over the window's future frames."""
-        decision = frames.start + self.window.decision_index
-        logged = odometry[decision].twist.twist
-        start = initial_state(
-            scenario.ego.poses[decision], float(np.hypot(logged.linear.x, logged.linear.y)), logged.angular.z,
-            self.controller,
-        )  # fmt: skip
-        stamps = scenario.frame_stamps_ns
-        return ClosedLoopSetup(
-            controller=self.controller,
-            start=start,
-            decision_stamp_ns=int(stamps[decision]),
-            frames=loop_frames(stamps, scenario.ego.poses, range(decision + 1, frames.stop - 1)),  # 5 s
-            period_s=self.window.frame_period,
-            ego_size=scenario.ego_geometry.size,
-            reactive=ReactiveSetup(self.idm, scenario.actors, scenario.ego, scenario.ego_geometry)
-            if self.config.reactive_actors
-            else None,
-        )
 
     def destroy_node(self) -> None:
         self._stop.set()

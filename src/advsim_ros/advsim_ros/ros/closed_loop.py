@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -24,8 +25,9 @@ from advsim_ros.core.closed_loop import (
     ExecutedTrajectory,
     VehicleState,
     drive_closed_loop,
+    initial_state,
 )
-from advsim_ros.core.episode import EpisodeClock
+from advsim_ros.core.episode import EpisodeClock, WindowConfig
 from advsim_ros.core.lidar.boxes import yaw_pose
 from advsim_ros.core.reactive import IdmConfig, ReactiveTraffic
 from advsim_ros.core.types import (
@@ -34,6 +36,7 @@ from advsim_ros.core.types import (
     EgoTrajectory,
     FloatArray,
     Plan,
+    Scenario,
     ScenarioError,
     replace_actors,
 )
@@ -80,6 +83,36 @@ class ClosedLoopSetup:
     def horizon_s(self) -> float:
         """The drive lasts one frame beyond the last replan."""
         return (len(self.frames) + 1) * self.period_s
+
+
+def closed_loop_setup(
+    scenario: Scenario,
+    frames: range,
+    odometry: Sequence[Any],
+    window: WindowConfig,
+    controller: ControllerConfig,
+    idm: IdmConfig | None,
+) -> ClosedLoopSetup:
+    """The drive after the decision: from the logged ego there, over the window's future frames.
+
+    ``frames``: the window's log frames; ``odometry``: the log's nav_msgs/Odometry per frame (its twist
+    is the ego's logged speed and yaw rate); ``idm``: the reactive actors' model, None when they are not.
+    """
+    decision = frames.start + window.decision_index
+    logged = odometry[decision].twist.twist
+    start = initial_state(
+        scenario.ego.poses[decision], float(np.hypot(logged.linear.x, logged.linear.y)), logged.angular.z, controller
+    )
+    stamps = scenario.frame_stamps_ns
+    return ClosedLoopSetup(
+        controller=controller,
+        start=start,
+        decision_stamp_ns=int(stamps[decision]),
+        frames=loop_frames(stamps, scenario.ego.poses, range(decision + 1, frames.stop - 1)),  # 5 s
+        period_s=window.frame_period,
+        ego_size=scenario.ego_geometry.size,
+        reactive=ReactiveSetup(idm, scenario.actors, scenario.ego, scenario.ego_geometry) if idm is not None else None,
+    )
 
 
 @dataclass

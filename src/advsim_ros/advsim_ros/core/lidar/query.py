@@ -1,5 +1,11 @@
 """The LiDAR sweep one query's stack sees at one frame: a pure function of the perturbed world.
 
+A requested frame's sweep (``frame_sweep``, what lidar_resim answers a FrameRequest with) is the
+logged sweep with the moved actors re-simulated (``query_sweep``), seen from where the request puts
+the ego. In closed loop a request may place the ego away from where it was logged: beyond
+render_distance / render_yaw (``moved_away``) the sweep is rendered from the model at that pose
+(core.lidar.novel_view) instead, as it is for a frame the log has no sweep of.
+
 The ray drop of re-simulated points is random; its generator is seeded from the attack's seed,
 the frame and the *content* of the perturbed tracks (never from the query's number), so the
 same perturbation gives the same sweep whenever it is queried: a re-run of the best query sees
@@ -8,13 +14,15 @@ exactly what the search saw.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from advsim_ros.core.digest import Digest
+from advsim_ros.core.lidar.config import ResimNodeConfig
+from advsim_ros.core.lidar.novel_view import render_from_model
 from advsim_ros.core.lidar.resim import ResimModel
-from advsim_ros.core.types import ActorTrack, FloatArray, Scenario, Sweep, replace_actors
+from advsim_ros.core.types import ActorTrack, FloatArray, Scenario, ScenarioError, Sweep, replace_actors
 
 
 def world_rng(seed: int, moved: Sequence[ActorTrack], log_stamp_ns: int) -> np.random.Generator:
@@ -54,3 +62,41 @@ def query_sweep(
     world = replace_actors(scenario.actors, moved)
     rng = world_rng(seed, moved, logged.stamp_ns)
     return model.resimulate(sweep, scenario.actors, world, rng=rng, moved={track.actor_id for track in moved})
+
+
+def moved_away(world_T_ego: FloatArray, logged: FloatArray, distance: float, yaw: float) -> bool:
+    """Whether the ego is further from its logged pose than the re-simulation of the logged sweep allows."""
+    offset = float(np.linalg.norm(world_T_ego[:2, 3] - logged[:2, 3]))
+    turned = abs(float(np.arctan2(world_T_ego[1, 0], world_T_ego[0, 0]) - np.arctan2(logged[1, 0], logged[0, 0])))
+    return offset > distance or min(turned, 2 * np.pi - turned) > yaw
+
+
+def frame_sweep(
+    model: ResimModel | None,
+    scenario: Scenario,
+    sweeps: Mapping[int, Sweep],
+    log_frame: int,
+    sim_stamp_ns: int,
+    world_T_ego: FloatArray,
+    moved: tuple[ActorTrack, ...],
+    config: ResimNodeConfig,
+) -> Sweep:
+    """The sweep of log frame ``log_frame`` in the perturbed world, stamped sim_stamp_ns, the ego at world_T_ego.
+
+    ``sweeps``: the logged sweeps kept, by stamp. It keeps the logged sweep's frame and fields; a sweep
+    rendered from the model (closed loop, module docstring) gets the first kept sweep's frame.
+    """
+    stamp = int(scenario.frame_stamps_ns[log_frame])
+    logged = sweeps.get(stamp)
+    logged_pose = scenario.ego.poses[log_frame]
+    if logged is None or moved_away(world_T_ego, logged_pose, config.render_distance, config.render_yaw):
+        # closed loop: the sweep from where the ego drove (or of a frame the log has no sweep of)
+        if model is None:
+            raise ScenarioError("closed loop: a sweep must be rendered from the model, and none was built")
+        sensor_pose = world_T_ego @ scenario.ego_T_sensor
+        world = replace_actors(scenario.actors, moved)
+        rng = world_rng(config.seed, moved, stamp)
+        points = render_from_model(model, scenario, sensor_pose, world, stamp, rng)
+        return Sweep(sim_stamp_ns, scenario.sweeps[0].frame_id, points, sensor_pose)
+    points = query_sweep(model, scenario, logged, world_T_ego, moved, config.seed)
+    return Sweep(sim_stamp_ns, logged.frame_id, points, logged.sensor_pose)
