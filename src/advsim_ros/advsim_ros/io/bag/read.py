@@ -16,7 +16,7 @@ import numpy as np
 from rosbags.interfaces import Connection
 
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, stamp_ns
+from advsim_ros.contract.codec import ContractError, header_stamp_ns, stamp_ns
 from advsim_ros.contract.pointcloud import DroppedPoints
 from advsim_ros.contract.scenario import drivable_area_from_grid, road_map_from_msg, scenario_info_from_msg
 from advsim_ros.contract.spatial import pose_matrix
@@ -87,7 +87,7 @@ def read_scenario_bag(
         if lidar is not None and (load_sweeps or not own_bag):  # users' bags take their frames from the sweeps
             wanted.append(lidar)
         kept = (sweeps_between or (-(2**63), 2**63 - 1)) if load_sweeps else None
-        collected = _collect(bag, wanted, config, pose_conn, lidar, kept)
+        collected = _collect(bag, wanted, config, pose_conn, lidar, kept, skim=sweeps_between is not None)
     collected.dropped.report(log, f"bag {path}", lidar.topic)
     return _assemble(path, collected, config, own_bag, kept)
 
@@ -99,10 +99,20 @@ def _collect(
     pose_conn: Connection | None,
     lidar: Connection | None,
     kept: tuple[int, int] | None,
+    skim: bool = False,
 ) -> _Collected:
-    """Every message the scenario needs; the points of the sweeps stamped within ``kept`` (none: no points)."""
+    """Every message the scenario needs; the points of the sweeps stamped within ``kept`` (none: no points).
+
+    ``skim``: a sweep outside ``kept`` is not decoded at all, only its header stamp read (the first one is,
+    for the sensor's frame name)."""
     collected = _Collected()
-    for connection, stamp, decoded in bag.messages(wanted):
+    for connection, stamp, raw in bag.raw_messages(wanted):
+        if skim and connection is lidar and kept is not None and collected.clouds:
+            header_ns = header_stamp_ns(raw)
+            if not kept[0] <= header_ns <= kept[1]:
+                collected.clouds.append((header_ns, "", _NO_POINTS))
+                continue
+        decoded = bag.decode(connection, stamp, raw)
         topic = connection.topic
         if connection is pose_conn and connection.msgtype == names.ODOMETRY:
             _check_frames(bag, topic, stamp, decoded.header.frame_id, decoded.child_frame_id, config)
