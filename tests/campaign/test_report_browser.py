@@ -74,4 +74,4 @@ def test_the_campaign_report_renders_in_headless_chromium_without_console_errors
     assert [i[2] for i in images if i[0].startswith("gallery")] == [160, 160, 160]
     assert not [link for link in links if link.lower().startswith(("http:", "https:", "//"))]
     assert "attacks/attack-0/adversarial_bag" in links
-    assert tables == ["table1", "table3", "table4", "table5", "curves", "gallery"]
+    assert tables == ["table1", "table2", "table2-families", "table3", "table4", "table5", "curves", "gallery"]

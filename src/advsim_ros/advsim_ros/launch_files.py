@@ -60,6 +60,7 @@ ATTACK = (
     Argument("reruns", "--reruns", "2", "evaluate the best query this many more times"),
     Argument("rerun_top", "--rerun-top", "1", "re-run the N best queries"),
     Argument("lanes", "--lanes", "1", "evaluate up to N queries of a batch at once, each on its own graph"),
+    Argument("no_visuals", "--no-visuals", "false", "true: leave out bev.gif and report.html", "flag"),
 )
 
 REPLAY = (
@@ -69,6 +70,7 @@ REPLAY = (
     Argument("check", "--check", "false", "true: exit 3 unless every run reproduces the recorded score", "flag"),
     Argument("runs", "--runs", "1", "how many times to replay"),
     Argument("tolerance", "--tolerance", "1e-06", "check: allowed |L_adv difference|"),
+    Argument("no_visuals", "--no-visuals", "false", "true: leave out bev.gif and report.html", "flag"),
 )
 
 ARGUMENTS: dict[str, tuple[Argument, ...]] = {"attack": ATTACK, "replay": REPLAY}
