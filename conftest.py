@@ -6,6 +6,9 @@ Tests that need the data skip with a message naming the missing folder when it i
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -15,6 +18,19 @@ from advsim_ros.io.bag import BagConfig
 from advsim_ros.io.kitti import load_kitti_tracking
 
 SHARED_DATA = Path(__file__).resolve().parent / "../shared/data"
+
+
+def _imported_after(code: str, modules: tuple[str, ...]) -> list[str]:
+    """Which of ``modules`` a fresh interpreter has imported after running ``code``."""
+    probe = f"{code}\nimport sys\nprint(','.join(sorted(m for m in {modules!r} if m in sys.modules)))\n"
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    return [name for name in result.stdout.strip().split(",") if name]
+
+
+@pytest.fixture(scope="session")
+def imported_after() -> Callable[[str, tuple[str, ...]], list[str]]:
+    """Run code in a fresh interpreter; the listed modules it imported (import costs of a command)."""
+    return _imported_after
 
 
 @pytest.fixture(scope="session")

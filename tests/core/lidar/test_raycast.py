@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -152,17 +153,16 @@ def test_a_caster_without_its_surface_casts_exactly_as_one_with_it() -> None:
         _ = lean.surface
 
 
-def test_the_ray_caster_loads_open3d_without_its_visualisers() -> None:
+def test_the_ray_caster_loads_open3d_without_its_visualisers(
+    imported_after: Callable[[str, tuple[str, ...]], list[str]],
+) -> None:
     # Open3D's package __init__ imports plotly, dash and IPython (~45 MB resident): a ray-casting
     # process (lidar_resim) loads only its compiled module
     code = (
-        "import sys\n"
         "from advsim_ros.core.lidar.raycast import SurfaceCaster, cuboid_surface\n"
         "SurfaceCaster(cuboid_surface([-1, -1, -1], [1, 1, 1], 0.5))\n"
-        "print(sorted(m for m in ('dash', 'plotly', 'IPython', 'open3d') if m in sys.modules))\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert result.stdout.strip() == "[]"
+    assert imported_after(code, ("dash", "plotly", "IPython", "open3d")) == []
 
 
 def test_open3d_imported_after_the_ray_caster_works_as_usual() -> None:

@@ -46,7 +46,7 @@ from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.objective import PRESET_NAMES
 from advsim_ros.core.search.registry import ALGORITHM_NAMES, accept_algorithm
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.io.bag import BagConfig, bag_layout_json, bag_layout_of, load_bag_config
+from advsim_ros.io.bag import BagConfig, bag_layout_json, bag_layout_of, load_bag_config, read_scenario_bag
 
 TOP_KEYS = (
     "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "loops", "reactive_actors", "reruns",
@@ -399,12 +399,10 @@ def load_campaign(path: Path, bag_config: BagConfig | None = None) -> Campaign:
     plan_timeout = values.get("plan_timeout", 10.0)
     if not isinstance(plan_timeout, (int, float)) or not math.isfinite(plan_timeout) or plan_timeout <= 0:
         raise _fail(path, "plan_timeout", f"expected a positive number of seconds, got {plan_timeout!r}")
+    layout = json.dumps(bag_layout_json(bag_config)) if bag_config else ""  # counts; without it: as before
     return Campaign(
         path=path,
-        # --bag-params counts as part of the configuration (a campaign without it digests as before)
-        digest=hashlib.sha256(
-            (text + (json.dumps(bag_layout_json(bag_config)) if bag_config else "")).encode()
-        ).hexdigest()[:16],
+        digest=hashlib.sha256((text + layout).encode()).hexdigest()[:16],
         scenarios=_scenarios(path, values["scenarios"], bag_config),
         stacks=_stacks(path, values["stacks"]),
         algorithms=_algorithms(path, values["algorithms"]),
@@ -441,8 +439,6 @@ def materialize(campaign: Campaign, logs_dir: Path) -> Campaign:
 
 def window_starts(campaign: Campaign, source: ScenarioSource, params_dir: Path | None = None) -> list[int]:
     """The first frames of the windows to attack in one log (checked against the log's length)."""
-    from advsim_ros.io.bag import read_scenario_bag
-
     params = params_dir or default_params_dir()
     scenario = read_scenario_bag(source.bag, config=source.bag_config, load_sweeps=False)
     where = f"scenarios[{source.name}].windows"
