@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -27,6 +28,10 @@ def _gid(pid: int) -> list[int]:
 def marked() -> Iterator[subprocess.Popen[bytes]]:
     """A process in a session of its own that carries the marker, as a stack's daemon would."""
     process = subprocess.Popen(["sleep", "600"], env={**os.environ, RUN_MARKER: MARKER}, start_new_session=True)
+    deadline = time.monotonic() + 10.0
+    # Popen returns after the fork: until the child has exec'd, /proc shows the parent's environment
+    while Path(f"/proc/{process.pid}/cmdline").read_bytes().split(b"\0")[0] != b"sleep" and time.monotonic() < deadline:
+        time.sleep(0.001)
     yield process
     process.kill()
     process.wait()
