@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from advsim_ros import graph
 from advsim_ros.core.drivable import DrivableConfig, drivable_area_for
 from advsim_ros.core.feasibility import (
     FeasibleSet,
@@ -180,7 +181,7 @@ def main() -> None:
     parser.add_argument("--queries", type=int, default=200, help="projection queries per measurement")
     parser.add_argument("--no-reports", action="store_true", help="skip the selection reports on real logs")
     args = parser.parse_args()
-    config = load_perturber_config(REPO / "params" / "perturber.yaml")
+    config = load_perturber_config(REPO / "params" / "perturber.yaml", node=graph.PERTURBER.name)
     figures: dict[str, Any] = {
         "machine": {"cpus": len(__import__("os").sched_getaffinity(0)), "python": platform.python_version()},
         "num_candidates": config.num_candidates,

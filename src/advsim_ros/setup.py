@@ -1,19 +1,31 @@
 """ament_python package advsim_ros: the attack graph's nodes, the `advsim` command and the pure core."""
 
+import importlib.util
+import sys
 from glob import glob
+from pathlib import Path
+from types import ModuleType
 
 from setuptools import find_packages, setup
 
 PACKAGE = "advsim_ros"
 
-# One console script per node (ros2 run advsim_ros <name>), plus the `advsim` command.
+
+def _graph() -> ModuleType:
+    """advsim_ros/graph.py on its own (standard library only): the package's dependencies may not be installed yet."""
+    spec = importlib.util.spec_from_file_location("_advsim_ros_graph", Path(__file__).parent / PACKAGE / "graph.py")
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    return module
+
+
+# One console script per node of the attack graph (ros2 run advsim_ros <name>; advsim_ros.graph declares them), one
+# per reference stack under test, and the `advsim` command.
 NODES: dict[str, str] = {
-    "scenario_player": "advsim_ros.nodes.scenario_player:main",
-    "perturber": "advsim_ros.nodes.perturber:main",
-    "lidar_resim": "advsim_ros.nodes.lidar_resim:main",
-    "scorer": "advsim_ros.nodes.scorer:main",
-    "search": "advsim_ros.nodes.search:main",
-    "stack_adapter": "advsim_ros.nodes.stack_adapter:main",
+    **{node.name: node.entry_point for node in _graph().runnable()},
     "modular_stack": "advsim_ros.stacks.modular.node:main",
     "learned_stack": "advsim_ros.stacks.learned.node:main",
 }

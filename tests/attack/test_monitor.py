@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from advsim_ros import graph
 from advsim_ros.contract.enums import Status
 from advsim_ros.contract.protocol import ScoreRecord, perturbation_msg, score_msg
 from advsim_ros.core.types import Perturbation
+from advsim_ros.ros.lockstep import StackNames
 from advsim_ros.ros.monitor import AttackMonitor
 
 RUN = 7
@@ -17,7 +19,9 @@ def _perturbation(query_id: int) -> object:
 
 
 def test_an_unfinished_query_is_named_with_the_pieces_it_still_lacks() -> None:
-    monitor = AttackMonitor(RUN)  # not entered: no ROS context, messages are handed to its callbacks
+    monitor = AttackMonitor(
+        RUN, StackNames(graph.NAMES), graph.MONITOR.name
+    )  # not entered: no ROS context, messages are handed to its callbacks
     assert monitor.missing() == ""
     monitor._on_perturbation(_perturbation(4))
     monitor._on_score(score_msg(ScoreRecord(4, Status.OK, adversarial_loss=2.0), RUN))

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import shapely
 
+from advsim_ros import graph
 from advsim_ros.core.drivable import (
     DrivableConfig,
     drivable_area_for,
@@ -167,7 +168,7 @@ def assert_on_road(trajectory: PerturbedTrajectory, road: shapely.Polygon) -> No
 
 
 def test_params_file_holds_the_defaults_and_the_perturbation_dimension_is_twelve() -> None:
-    config = load_perturber_config(REPO / "params" / "perturber.yaml")
+    config = load_perturber_config(REPO / "params" / "perturber.yaml", node=graph.PERTURBER.name)
     assert config == PerturberConfig()
     assert config.perturbation_dim == 12
     assert perturbation_names(4)[:4] == ("dx0", "dy0", "dheading0", "dv0")
@@ -184,7 +185,7 @@ def test_unknown_or_invalid_parameters_are_rejected_by_name(tmp_path: Path) -> N
     path = tmp_path / "bad.yaml"
     path.write_text("/perturber:\n  ros__parameters:\n    num_knots: 1\n", encoding="utf-8")
     with pytest.raises(ParamsError, match="num_knots"):
-        load_perturber_config(path)
+        load_perturber_config(path, node=graph.PERTURBER.name)
 
 
 def test_a_window_beyond_the_log_is_rejected(street: Scenario) -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from advsim_ros import graph
 from advsim_ros.core.futures import ActorFutures, actor_futures_at
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.objective import (
@@ -206,7 +207,7 @@ def test_objective_config_names_the_bad_key() -> None:
 
 
 def test_the_scorer_parameters_file_loads_into_the_full_objective() -> None:
-    settings = load_scorer_settings(REPO / "params" / "scorer.yaml")
+    settings = load_scorer_settings(REPO / "params" / "scorer.yaml", node=graph.SCORER.name)
     assert settings.objective == ObjectiveConfig()
     assert settings.metrics == MetricsConfig()  # the file holds every metrics default (actor_extrapolation too)
     assert settings.metrics.horizons == (3.0, 5.0)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from advsim_ros import graph
 from advsim_ros.attack.controls import controls, finding, query_faults
 from advsim_ros.attack.summary import attack_summary
 from advsim_ros.contract import codec, names, topics
@@ -40,7 +41,7 @@ STOP_FRAME = 40  # the perturbed actor stops where the SDV is at this frame of t
 
 
 def _score(query_id: int, plan: Plan, window: Scenario, moved: list[ActorTrack]) -> dict[str, Any]:
-    settings = load_scorer_settings(REPO / "params" / "scorer.yaml")
+    settings = load_scorer_settings(REPO / "params" / "scorer.yaml", node=graph.SCORER.name)
     evaluation = evaluate_query(plan, window, moved, DECISION, settings, None)
     terms, metrics = evaluation.terms, evaluation.metrics
     return ScoreRecord(

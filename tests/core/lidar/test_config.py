@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from advsim_ros import graph
 from advsim_ros.core.lidar.config import ResimConfig, load_resim_config
 from advsim_ros.core.params import ParamsError
 from advsim_ros.core.types import ScenarioError
@@ -14,14 +15,14 @@ PARAMS = Path(__file__).resolve().parents[3] / "params" / "lidar_resim.yaml"
 
 
 def test_the_parameters_file_holds_the_defaults() -> None:
-    assert load_resim_config(PARAMS) == ResimConfig()
+    assert load_resim_config(PARAMS, node=graph.LIDAR_RESIM.name) == ResimConfig()
 
 
 def test_an_unknown_key_in_the_parameters_file_is_named(tmp_path: Path) -> None:
     path = tmp_path / "lidar_resim.yaml"
     path.write_text("/lidar_resim:\n  ros__parameters:\n    resim:\n      box_margn: 0.1\n")
     with pytest.raises(ParamsError, match="box_margn"):
-        load_resim_config(path)
+        load_resim_config(path, node=graph.LIDAR_RESIM.name)
 
 
 @pytest.mark.parametrize(

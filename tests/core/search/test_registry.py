@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from advsim_ros import graph
 from advsim_ros.core.params import ParamsError
 from advsim_ros.core.search import (
     ALGORITHM_NAMES,
@@ -27,14 +28,14 @@ SEARCH_PARAMS = REPO / "params" / "search.yaml"
 
 @pytest.mark.parametrize("name", ALGORITHM_NAMES)
 def test_the_search_parameters_file_holds_the_paper_defaults_of_every_algorithm(name: str) -> None:
-    settings = load_search_settings(SEARCH_PARAMS, algorithm=name)
+    settings = load_search_settings(SEARCH_PARAMS, algorithm=name, node=graph.SEARCH.name)
     assert settings.algorithm == name
     assert settings.config == default_config(name)
     assert settings.seed == 0
 
 
 def test_the_search_parameters_file_chooses_bayesian_optimisation_with_75_queries() -> None:
-    settings = load_search_settings(SEARCH_PARAMS)
+    settings = load_search_settings(SEARCH_PARAMS, node=graph.SEARCH.name)
     assert settings.algorithm == "bo"
     assert settings.config.max_queries == 75
 
@@ -49,10 +50,10 @@ def test_search_parameters_name_the_bad_key(tmp_path: Path) -> None:
     broken = tmp_path / "search.yaml"
     broken.write_text("/search:\n  ros__parameters:\n    algorithm: cmaes\n", encoding="utf-8")
     with pytest.raises(ParamsError, match=r"algorithm: 'cmaes' is not one of bo, ga, simba, nes, bandit, random"):
-        load_search_settings(broken)
+        load_search_settings(broken, node=graph.SEARCH.name)
     broken.write_text("/scorer:\n  ros__parameters: {}\n", encoding="utf-8")
     with pytest.raises(ParamsError, match="no entry for node /search"):
-        load_search_settings(broken)
+        load_search_settings(broken, node=graph.SEARCH.name)
 
 
 def test_simba_is_named_simba_and_its_old_name_rs_still_works_with_one_warning(
@@ -76,7 +77,7 @@ def test_simba_is_named_simba_and_its_old_name_rs_still_works_with_one_warning(
     old = tmp_path / "search.yaml"  # a parameters file of before the rename
     old.write_text("/search:\n  ros__parameters:\n    algorithm: rs\n    rs: {step: 0.5}\n", encoding="utf-8")
     with caplog.at_level(logging.WARNING):
-        settings = load_search_settings(old)
+        settings = load_search_settings(old, node=graph.SEARCH.name)
     assert settings.algorithm == "simba"
     assert settings.config == SimbaConfig(step=0.5)
     assert len(caplog.records) == 2  # the section and the algorithm, one line each

@@ -17,15 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from advsim_ros import graph
 from advsim_ros.attack.options import AttackOptions, StackSpec
 from advsim_ros.attack.params import node_files, node_parameters, section
 from advsim_ros.core.curation import CurationConfig, best_window, curate_windows, load_curation_config
-from advsim_ros.core.drivable import DrivableConfig
 from advsim_ros.core.episode import WindowConfig
-from advsim_ros.core.lidar.config import ResimConfig
-from advsim_ros.core.objective import scorer_settings_from_params
-from advsim_ros.core.search.driver import DriverConfig
-from advsim_ros.core.search.registry import ALGORITHM_NAMES, RENAMED_ALGORITHMS, config_from_params
+from advsim_ros.core.search.registry import ALGORITHM_NAMES, RENAMED_ALGORITHMS
 from advsim_ros.core.types import Scenario, ScenarioError
 from advsim_ros.io.bag import BagConfig, check_lidar_sweeps, lidar_topic_of, read_scenario_bag, summarize_bag
 
@@ -44,11 +41,9 @@ class Preflight:
     files: dict[str, tuple[Path, ...]]  # node -> the project's parameter files it gets (before the overrides)
 
 
-GRAPH_NODES = ("scorer", "scenario_player", "lidar_resim", "perturber", "search")
-
-
-def _fields(config_type: type[Any]) -> set[str]:
-    return {field.name for field in dataclasses.fields(config_type)}
+GRAPH_NODES = tuple(node.name for node in graph.CONFIGURED)  # each reads params/<node>.yaml
+# every node takes these (params/bag.yaml's and the attack's /** entries; run_id: ros.graph_node)
+SHARED = {graph.WINDOW.key, graph.BAG.key, "run_id"}
 
 
 def check_stack_command(stack: StackSpec) -> None:
@@ -82,7 +77,8 @@ def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
     params_dir = options.params
     files = {node: node_files(params_dir, node) for node in GRAPH_NODES}
     parameters = {node: node_parameters(files[node], node, overrides) for node in GRAPH_NODES}
-    bag_config = section(parameters["scenario_player"], "bag", BagConfig, "bag")
+    player = parameters[graph.SCENARIO_PLAYER.name]
+    bag_config = section(player, graph.BAG.key, BagConfig, graph.BAG.key)
     scenario = read_scenario_bag(bag, config=bag_config, load_sweeps=False)
     held = summarize_bag(bag).topics
     lidar_topic = lidar_topic_of({topic: summary.msgtype for topic, summary in held.items()}, bag_config.lidar_topic)
@@ -92,8 +88,8 @@ def preflight(options: AttackOptions, overrides: dict[str, Any]) -> Preflight:
     start = options.window_start_frame
     if start is None:
         start = 0 if options.replay_only else choose_window(scenario, params_dir)
-    window_values = {**parameters["scenario_player"].get("window", {}), "window_start_frame": int(start)}
-    window = section({"window": window_values}, "window", WindowConfig, "window")
+    window_values = {**player.get(graph.WINDOW.key, {}), "window_start_frame": int(start)}
+    window = section({graph.WINDOW.key: window_values}, graph.WINDOW.key, WindowConfig, graph.WINDOW.key)
     frames = window.frame_indices(scenario.num_frames)  # the window inside the log, or the error saying by how much
     _check_sweeps(bag, bag_config, scenario, frames, window.history_frames)
     _check_node_configs(options, parameters)
@@ -110,42 +106,43 @@ def _check_sweeps(bag: Path, config: BagConfig, scenario: Scenario, frames: rang
         raise ScenarioError(f"{bag}: no LiDAR sweep on {config.lidar_topic} at the window's history frames {missing}")
 
 
-def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, Any]]) -> None:
-    """Build every node's configs the way the node will, so bad parameters fail here, not in a process."""
-    from advsim_ros.core.closed_loop import ControllerConfig
-    from advsim_ros.core.feasibility import PerturberConfig
-    from advsim_ros.core.lidar.config import ResimNodeConfig
-    from advsim_ros.core.reactive import IdmConfig
-    from advsim_ros.ros.lockstep import PlayerConfig
+def _known(node: graph.Node) -> set[str]:
+    """The top-level parameters a node takes: its own fields, its sections' keys and the shared ones."""
+    known = set(SHARED)
+    for part in node.sections:
+        if part.key == graph.ALGORITHMS:
+            known.update(ALGORITHM_NAMES)
+        elif part.key:
+            known.add(part.key)
+        else:
+            known.update(field.name for field in dataclasses.fields(graph.resolve(part.config)))
+    return known
 
-    shared = {"window", "bag", "run_id"}
-    known = {
-        "scenario_player": {*_fields(PlayerConfig), "controller", "reactive", *shared},
-        "lidar_resim": {*_fields(ResimNodeConfig), "resim", *shared},
-        "perturber": {*_fields(PerturberConfig), *shared},
-        "scorer": {"objective", "metrics", "drivable", *shared},
-        "search": {*_fields(DriverConfig), *ALGORITHM_NAMES, *shared},
-    }
+
+def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, Any]]) -> None:
+    """Build every section of every node's parameters (advsim_ros.graph) the way the node will, so bad
+    parameters fail here, not in a process."""
+    known = {node.name: _known(node) for node in graph.CONFIGURED}
     for node, values in options.parameter_overrides.items():
         if node not in known:
             raise ScenarioError(f"parameter for node {node!r}: not a node of the graph (one of {', '.join(known)})")
         unknown = sorted(set(values) - known[node])
         if unknown:
             raise ScenarioError(f"/{node}: unknown parameter(s) {unknown} (known: {sorted(known[node])})")
-
-    section(parameters["scenario_player"], "", PlayerConfig, "/scenario_player")
-    section(parameters["scenario_player"], "controller", ControllerConfig, "/scenario_player controller")
-    section(parameters["scenario_player"], "reactive", IdmConfig, "/scenario_player reactive")
-    section(parameters["lidar_resim"], "", ResimNodeConfig, "/lidar_resim")
-    section(parameters["lidar_resim"], "resim", ResimConfig, "/lidar_resim")
-    section(parameters["perturber"], "", PerturberConfig, "/perturber")
-    section(parameters["scorer"], "drivable", DrivableConfig, "drivable")
-    scorer = {k: v for k, v in parameters["scorer"].items() if k in ("objective", "metrics")}
-    scorer_settings_from_params(scorer, "/scorer")
-    search = parameters["search"]
+    search = parameters[graph.SEARCH.name]
     for old, new in RENAMED_ALGORITHMS.items():  # attack.run reads the old section as the new one
         if old in search:
             _log.warning("/search: the section %r of the parameters files is deprecated: name it %r", old, new)
-    section(search, "", DriverConfig, "/search")
-    if not options.replay_only:
-        config_from_params(options.algorithm, search.get(options.algorithm, {}), f"/search {options.algorithm}")
+    for node in graph.CONFIGURED:
+        for part in node.sections:
+            key, context = part.key, f"/{node.name}"
+            if key == graph.ALGORITHMS:  # the attack's algorithm only (a replay has none)
+                if options.replay_only:
+                    continue
+                key, config = options.algorithm, graph.resolve(part.config)(options.algorithm)
+            else:
+                config = graph.resolve(part.config)
+            if part.build:
+                graph.resolve(part.build)(parameters[node.name].get(key, {}), f"{context} {key}")
+            else:
+                section(parameters[node.name], key, config, context)

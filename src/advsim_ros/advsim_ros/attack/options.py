@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from advsim_ros import graph
 from advsim_ros.adapters.profile import ProcessProfile, StackProfile, profile_from_mapping
 from advsim_ros.contract import topics
 from advsim_ros.core.search.registry import accept_algorithm, renamed_sections
@@ -256,9 +257,10 @@ class AttackOptions:
     def __post_init__(self) -> None:
         # an algorithm under an old name ("rs"): one warning, then its name now, in --algo and in --param search.*
         object.__setattr__(self, "algorithm", accept_algorithm(self.algorithm))
-        if "search" in self.parameter_overrides:
-            search = renamed_sections(self.parameter_overrides["search"], "--param search")
-            object.__setattr__(self, "parameter_overrides", {**self.parameter_overrides, "search": search})
+        name = graph.SEARCH.name
+        if name in self.parameter_overrides:
+            search = renamed_sections(self.parameter_overrides[name], f"--param {name}")
+            object.__setattr__(self, "parameter_overrides", {**self.parameter_overrides, name: search})
         if self.queries < 1 and not self.replay_only:
             raise ScenarioError(f"--queries: must be at least 1, got {self.queries}")
         if self.actors < 1:

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+from advsim_ros import graph
 from advsim_ros.attack.checks import Preflight
 from advsim_ros.attack.controls import controls, finding, query_faults
 from advsim_ros.attack.options import AttackOptions
@@ -69,9 +70,10 @@ def write_outputs(
     window = checked.window
     decision_frame = window.window_start_frame + window.decision_index
     analysis["controls"] = controls(records, int(checked.scenario.frame_stamps_ns[decision_frame]))
-    drivable_config = section(checked.parameters["scorer"], "drivable", DrivableConfig, "drivable")
+    scorer = checked.parameters[graph.SCORER.name]
+    drivable_config = section(scorer, graph.DRIVABLE.key, DrivableConfig, "drivable")
     drivable = bag_drivable_area(checked.bag, checked.scenario, drivable_config, checked.bag_config)  # as scored
-    metrics = section(checked.parameters["scorer"], "metrics", MetricsConfig, "/scorer metrics")
+    metrics = section(scorer, "metrics", MetricsConfig, "/scorer metrics")
     faults = query_faults(records, checked.scenario, decision_frame, metrics, drivable)
     for entry in analysis["queries"]:
         entry["fault"] = faults.get(entry["query_id"])
@@ -164,7 +166,7 @@ def _write_adversarial_bag(
     window = checked.window
     frames = window.frame_indices(scenario.num_frames)
     cropped = window.crop(scenario)  # as lidar_resim: the model of the window's frames
-    resim_parameters = checked.parameters["lidar_resim"]
+    resim_parameters = checked.parameters[graph.LIDAR_RESIM.name]
     seed = int(resim_parameters.get("seed", 0))
     cache = Path(str(resim_parameters.get("cache_dir") or cache_root() / "resim"))
     model = None

@@ -29,6 +29,7 @@ from typing import Any
 
 import yaml
 
+from advsim_ros import graph
 from advsim_ros.adapters.profile import StackProfile
 from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackError, AttackOptions
@@ -50,13 +51,9 @@ from advsim_ros.ros.trace import Trace
 
 JOURNAL_NAME = "queries.jsonl"
 LOCK_NAME = ".advsim.lock"  # held by the run using the folder (hold_output_folder)
-CONTAINER = "graph_nodes"  # the process of the light nodes (nodes/container.py)
-RESIM = "lidar_resim"  # in a process of its own: it computes while the others wait
-ADAPTER = "stack_adapter"  # with a stack profile or --remap (relay mode): the stack's names, types, frames, timing
+CONTAINER = graph.Process.CONTAINER.value  # the process of the light nodes (nodes/container.py)
 ADAPTER_PROFILE = "stack_profile.json"  # in OUTDIR/run: the profile stack_adapter works from
-_LIGHT_NODES = ("scenario_player", "scorer", "perturber", "search")
-_REPLAY_LIGHT_NODES = ("scenario_player", "scorer")
-_LANE_LIGHT_NODES = ("scenario_player", "scorer", "perturber")  # a further evaluation lane: the search is elsewhere
+SEARCH = graph.SEARCH.name
 
 
 @dataclass
@@ -75,8 +72,8 @@ def search_notes(options: AttackOptions) -> tuple[str, ...]:
     if options.replay_only:
         return ()
     overrides = _base_overrides(options, options.out_dir / JOURNAL_NAME)
-    search = node_parameters(node_files(options.params, "search"), "search", overrides)
-    context = f"/search {options.algorithm}"
+    search = node_parameters(node_files(options.params, SEARCH), SEARCH, overrides)
+    context = f"/{SEARCH} {options.algorithm}"
     return config_from_params(options.algorithm, search.get(options.algorithm, {}), context).notes()
 
 
@@ -84,9 +81,11 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
     """The attack's parameters on top of params/ (window start added once the window is chosen)."""
     overrides: dict[str, Any] = {
         "/**": {"ros__parameters": {"window": {"scenario_bag": str(options.bag.resolve())}}},
-        "/scenario_player": {"ros__parameters": {"plan_timeout": options.plan_timeout, "loop": options.loop}},
+        f"/{graph.SCENARIO_PLAYER.name}": {
+            "ros__parameters": {"plan_timeout": options.plan_timeout, "loop": options.loop}
+        },
         # closed loop renders sweeps from where the ego drove: the model is needed even when nothing moves
-        "/lidar_resim": {
+        f"/{graph.LIDAR_RESIM.name}": {
             "ros__parameters": {
                 "build_model": not options.replay_only or options.loop == "closed",
                 "history_sweeps_only": options.loop == "open",  # open loop requests no later frame
@@ -96,8 +95,8 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
     if options.bag_config is not None:  # --bag-params: every node reads and publishes the bag's layout
         overrides["/**"]["ros__parameters"]["bag"] = bag_layout_json(options.bag_config)
     if not options.replay_only:
-        overrides["/perturber"] = {"ros__parameters": {"num_actors": options.actors}}
-        overrides["/search"] = {
+        overrides[f"/{graph.PERTURBER.name}"] = {"ros__parameters": {"num_actors": options.actors}}
+        overrides[f"/{SEARCH}"] = {
             "ros__parameters": {
                 "algorithm": options.algorithm,
                 "seed": options.seed,
@@ -108,12 +107,12 @@ def _base_overrides(options: AttackOptions, journal: Path) -> dict[str, Any]:
                 options.algorithm: {"max_queries": options.queries},
             }
         }
-        search = overrides["/search"]["ros__parameters"]
-        filed = node_parameters(node_files(options.params, "search"), "search")
+        search = overrides[f"/{SEARCH}"]["ros__parameters"]
+        filed = node_parameters(node_files(options.params, SEARCH), SEARCH)
         for old, new in RENAMED_ALGORITHMS.items():  # a params folder of before a rename: the section as named now
             if new == options.algorithm and isinstance(filed.get(old), dict):  # (checks.preflight warns)
                 search[new] = {**filed[old], **filed.get(new, {}), **search[new]}
-    player = overrides["/scenario_player"]["ros__parameters"]
+    player = overrides[f"/{graph.SCENARIO_PLAYER.name}"]["ros__parameters"]
     if options.reactive_actors:
         player["reactive_actors"] = True
     if options.stack.relayed():  # the stack keeps its own topic names: stack_adapter bridges them
@@ -301,7 +300,7 @@ def _run_graph(
         if len(domains) > 1:  # the search's other lanes (an empty list would reach ROS untyped)
             lanes_file = run_dir / "lanes.yaml"
             write_text_atomically(
-                lanes_file, yaml.safe_dump({"/search": {"ros__parameters": {"lane_domains": domains[1:]}}})
+                lanes_file, yaml.safe_dump({f"/{SEARCH}": {"ros__parameters": {"lane_domains": domains[1:]}}})
             )
         lanes = []
         for index, lease in enumerate(leases):
@@ -310,8 +309,9 @@ def _run_graph(
             stack = options.stack.processes()
             # each lane's processes carry a marker of their own (ros.identity): the lane's publishers, its reaper's prey
             launcher = resources.enter_context(Launcher(graph_environment(lease.domain_id), log_dir, lease))
+            names = StackNames(graph.NAMES, options.stack.relayed())
             monitor = resources.enter_context(
-                AttackMonitor(run_id, skip, StackNames(options.stack.relayed()), lease.domain_id, index)
+                AttackMonitor(run_id, names, graph.MONITOR.name, skip, lease.domain_id, index)
             )
             for process in (*stack, *specs):
                 launcher.start(process)
@@ -334,7 +334,8 @@ def _graph_specs(
     search: bool,
 ) -> list[NodeSpec]:
     """The graph's own processes (the stack aside); the search only in the first lane."""
-    light = _REPLAY_LIGHT_NODES if options.replay_only else _LIGHT_NODES if search else _LANE_LIGHT_NODES
+    role = graph.Role.REPLAY if options.replay_only else graph.Role.SEARCH if search else graph.Role.LANE
+    light = [node.name for node in graph.started(role, graph.Process.CONTAINER)]
     container_files = list(dict.fromkeys(path for name in light for path in checked.files[name]))
     specs = [
         NodeSpec(
@@ -344,11 +345,14 @@ def _graph_specs(
             parameters={"run_id": run_id},
             rename_node=False,  # each node keeps its own name
         ),
-        NodeSpec(
-            RESIM,
-            python_module_command("advsim_ros.nodes.lidar_resim"),
-            params_files=(*checked.files[RESIM], overrides_file),
-            parameters={"run_id": run_id},
+        *(
+            NodeSpec(
+                node.name,  # lidar_resim: it computes while the others wait
+                python_module_command(node.module),
+                params_files=(*checked.files[node.name], overrides_file),
+                parameters={"run_id": run_id},
+            )
+            for node in graph.started(role, graph.Process.OWN)
         ),
     ]
     adapter = options.stack.adapter_profile()
@@ -357,8 +361,8 @@ def _graph_specs(
         write_text_atomically(profile_file, adapter.to_json())
         specs.append(
             NodeSpec(
-                ADAPTER,
-                python_module_command("advsim_ros.nodes.stack_adapter"),
+                graph.STACK_ADAPTER.name,
+                python_module_command(graph.STACK_ADAPTER.module),
                 parameters={"run_id": run_id, "profile_file": str(profile_file)},
             )
         )

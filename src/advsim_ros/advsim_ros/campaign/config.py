@@ -39,6 +39,7 @@ from typing import Any
 
 import yaml
 
+from advsim_ros import graph
 from advsim_ros.attack.checks import check_stack_command
 from advsim_ros.attack.options import AttackOptions, StackSpec, default_params_dir
 from advsim_ros.core.curation import CurationConfig, curate_windows, load_curation_config
@@ -142,7 +143,7 @@ class AttackPlan:
     def options(self, out_dir: Path, config_dir: Path) -> AttackOptions:
         """The attack's options (the objective preset goes to the scorer's parameters)."""
         overrides = json.loads(json.dumps(self.parameters))
-        scorer = overrides.setdefault("scorer", {})
+        scorer = overrides.setdefault(graph.SCORER.name, {})
         scorer.setdefault("objective", {})["preset"] = self.objective
         return AttackOptions(
             bag=Path(self.bag), out_dir=out_dir, stack=stack_spec(self.stack_entry, config_dir),

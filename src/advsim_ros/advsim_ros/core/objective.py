@@ -52,7 +52,6 @@ if TYPE_CHECKING:  # the raster type only; importing drivable pulls in scipy
 OBJECTIVE_KINDS = ("advsim", "closest_distance", "max_margin")
 PRESET_NAMES = ("M0", "M1", "M2", "M3", "M4", "M5", "closest_distance", "max_margin")
 MIN_PLAN_POSES = 4  # jerk needs four poses
-SCORER_NODE_NAME = "scorer"  # node whose parameters params/scorer.yaml holds
 
 
 @dataclass(frozen=True)
@@ -303,17 +302,24 @@ def scorer_settings_from_params(parameters: Mapping[str, Any], context: str) -> 
     unknown = sorted(set(parameters) - {"objective", "metrics"})
     if unknown:
         raise ParamsError(f"{context}: unknown parameter(s) {unknown} (known: ['metrics', 'objective'])")
-    objective_section = dict(parameters.get("objective", {}))
-    preset = objective_section.pop("preset", None)
-    objective = config_from_mapping(ObjectiveConfig, objective_section, f"{context}.objective")
-    if preset is not None:
-        if not isinstance(preset, str) or preset not in PRESET_NAMES:
-            raise ParamsError(f"{context}.objective.preset: {preset!r} is not one of {', '.join(PRESET_NAMES)}")
-        objective = objective_preset(preset, objective)
+    objective = objective_from_params(parameters.get("objective", {}), f"{context}.objective")
     metrics = config_from_mapping(MetricsConfig, parameters.get("metrics", {}), f"{context}.metrics")
     return ScorerSettings(objective, metrics)
 
 
-def load_scorer_settings(path: Path) -> ScorerSettings:
-    """Read params/scorer.yaml (node /scorer)."""
-    return scorer_settings_from_params(load_node_params(path, SCORER_NODE_NAME), f"{path} /{SCORER_NODE_NAME}")
+def objective_from_params(values: Mapping[str, Any], context: str) -> ObjectiveConfig:
+    """The objective section: ObjectiveConfig's fields, and an optional `preset` (M0..M5 or a baseline) applied
+    on top of them."""
+    fields = dict(values)
+    preset = fields.pop("preset", None)
+    objective = config_from_mapping(ObjectiveConfig, fields, context)
+    if preset is not None:
+        if not isinstance(preset, str) or preset not in PRESET_NAMES:
+            raise ParamsError(f"{context}.preset: {preset!r} is not one of {', '.join(PRESET_NAMES)}")
+        objective = objective_preset(preset, objective)
+    return objective
+
+
+def load_scorer_settings(path: Path, *, node: str) -> ScorerSettings:
+    """Read the parameters of node ``node`` (advsim_ros.graph names it) in params/scorer.yaml."""
+    return scorer_settings_from_params(load_node_params(path, node), f"{path} /{node}")

@@ -15,17 +15,12 @@ from collections.abc import Callable
 
 from rclpy.node import Node
 
+from advsim_ros import graph
 from advsim_ros.ros.graph_node import run_nodes
 
 # Each node's module is imported only when the node is run here: lidar_resim's alone would
 # bring Open3D (about 170 MB resident) into a process that never casts a ray.
-_MODULES = {
-    "scenario_player": ("advsim_ros.nodes.scenario_player", "ScenarioPlayer"),
-    "scorer": ("advsim_ros.nodes.scorer", "Scorer"),
-    "perturber": ("advsim_ros.nodes.perturber", "Perturber"),
-    "search": ("advsim_ros.nodes.search", "SearchNode"),
-    "lidar_resim": ("advsim_ros.nodes.lidar_resim", "LidarResim"),
-}
+_MODULES = {node.name: (node.module, node.node_class) for node in graph.runnable()}
 
 
 def _factory(name: str) -> Callable[[], Node]:

@@ -17,6 +17,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from advsim_ros import graph
 from advsim_ros.contract import topics
 from advsim_ros.contract.protocol import FrameRequestRecord, frame_request_from_msg
 from advsim_ros.contract.scenario import cloud_msg
@@ -30,14 +31,13 @@ from advsim_ros.core.types import ActorTrack, ScenarioError
 from advsim_ros.io.cache import cache_root
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros.graph_node import run_node
-from advsim_ros.ros.params import declare_config
 
 
 class LidarResim(ScenarioNode):
     def __init__(self) -> None:
-        super().__init__("lidar_resim")
-        self.config = declare_config(self, ResimNodeConfig)
-        resim_config = declare_config(self, ResimConfig, "resim.")
+        super().__init__(graph.LIDAR_RESIM)
+        self.config = self.declare_section("", ResimNodeConfig)
+        resim_config = self.declare_section("resim", ResimConfig)
         log, self.clock = self.load_scenario(load_sweeps=True)
         scenario = self.window.crop(log)  # the model and the sweeps of the window's frames only: requests are
         del log  # numbered in the log, the cropped scenario from the window's first frame (self.first_frame)

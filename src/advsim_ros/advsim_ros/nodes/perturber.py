@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from advsim_ros import graph
 from advsim_ros.contract import topics
 from advsim_ros.contract.enums import Status
 from advsim_ros.contract.protocol import (
@@ -30,13 +31,12 @@ from advsim_ros.core.search.driver import IDENTITY
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.nodes.scenario_node import ScenarioNode
 from advsim_ros.ros.graph_node import run_node
-from advsim_ros.ros.params import declare_config
 
 
 class Perturber(ScenarioNode):
     def __init__(self) -> None:
-        super().__init__("perturber")
-        self.config = declare_config(self, PerturberConfig)
+        super().__init__(graph.PERTURBER)
+        self.config = self.declare_section("", PerturberConfig)
         if self.config.horizon_steps != self.window.num_frames:
             raise ScenarioError(
                 f"/perturber horizon_steps ({self.config.horizon_steps}) must equal window.history_frames + "

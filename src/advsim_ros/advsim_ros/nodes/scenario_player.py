@@ -16,6 +16,7 @@ from typing import Any
 
 import rclpy
 
+from advsim_ros import graph
 from advsim_ros.contract import codec, topics
 from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.tracks import track_array_from_msg
@@ -28,16 +29,15 @@ from advsim_ros.ros import lockstep
 from advsim_ros.ros.closed_loop import closed_loop_setup
 from advsim_ros.ros.graph_node import run_node
 from advsim_ros.ros.identity import RUN_MARKER, run_membership
-from advsim_ros.ros.params import declare_config
 from advsim_ros.ros.player import latch_scenario, player_inputs, player_outputs
 
 
 class ScenarioPlayer(ScenarioNode):
     def __init__(self) -> None:
-        super().__init__("scenario_player")
-        self.config = declare_config(self, lockstep.PlayerConfig)
-        self.controller = declare_config(self, ControllerConfig, "controller.")  # closed loop
-        self.idm = declare_config(self, IdmConfig, "reactive.")  # closed loop, reactive_actors
+        super().__init__(graph.SCENARIO_PLAYER)
+        self.config = self.declare_section("", lockstep.PlayerConfig)
+        self.controller = self.declare_section("controller", ControllerConfig)  # closed loop
+        self.idm = self.declare_section("reactive", IdmConfig)  # closed loop, reactive_actors
         scenario, self.clock = self.load_scenario(load_sweeps=False)
         bag = self.bag_config
         frames = self.window.frame_indices(scenario.num_frames)
@@ -55,7 +55,7 @@ class ScenarioPlayer(ScenarioNode):
             self.closed_loop = closed_loop_setup(scenario, frames, odometry, self.window, self.controller, idm)
         self.outputs = player_outputs(self, bag.world_frame, bag.ego_frame, self.controller)
         self.inputs = player_inputs(self)
-        names = lockstep.StackNames.from_pairs(self.config.stack_topics)
+        names = lockstep.StackNames.from_pairs(graph.NAMES, self.config.stack_topics)
         self.stack_names = names
         membership = run_membership()
         if membership is None:  # started by hand or by a launch file without the marker

@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from advsim_ros import graph
 from advsim_ros.contract import topics
 from advsim_ros.contract.enums import Outcome, Phase
 from advsim_ros.contract.protocol import EpisodeRecord, episode_from_msg, score_msg
@@ -28,13 +29,13 @@ from advsim_ros.ros.scoring import score_episode
 
 class Scorer(ScenarioNode):
     def __init__(self) -> None:
-        super().__init__("scorer")
+        super().__init__(graph.SCORER)
         objective = declare_parameters(self, ObjectiveConfig, "objective.")
         preset = self.declare_parameter("objective.preset", "").value  # M0..M5 or a baseline; "" = as given
         if preset:
             objective["preset"] = preset
         metrics = declare_parameters(self, MetricsConfig, "metrics.")
-        self.settings = scorer_settings_from_params({"objective": objective, "metrics": metrics}, "/scorer")
+        self.settings = scorer_settings_from_params({"objective": objective, "metrics": metrics}, f"/{self.spec.name}")
         self.scenario, self.clock = self.load_scenario(load_sweeps=False)
         self.drivable = self.drivable_area(self.scenario)
         frames = self.window.frame_indices(self.scenario.num_frames)

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from advsim_ros import graph
 from advsim_ros.contract import topics
 from advsim_ros.contract.protocol import (
     SearchStatusRecord,
@@ -33,6 +34,7 @@ from advsim_ros.core.journal import read_records
 from advsim_ros.core.search.driver import DriverConfig, drive_search
 from advsim_ros.core.search.registry import ALGORITHM_NAMES, config_type, make_search
 from advsim_ros.core.types import Perturbation, ScenarioError
+from advsim_ros.nodes.scenario_node import declare_section
 from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.lanes import Lanes
 from advsim_ros.ros.params import declare_config
@@ -40,8 +42,8 @@ from advsim_ros.ros.params import declare_config
 
 class SearchNode(GraphNode):
     def __init__(self) -> None:
-        super().__init__("search")
-        self.config = declare_config(self, DriverConfig)
+        super().__init__(graph.SEARCH.name)
+        self.config = declare_section(self, graph.SEARCH, "", DriverConfig)
         if self.config.algorithm not in ALGORITHM_NAMES:
             raise ScenarioError(
                 f"/search algorithm: {self.config.algorithm!r} is not one of {', '.join(ALGORITHM_NAMES)}"

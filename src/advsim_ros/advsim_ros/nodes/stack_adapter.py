@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from advsim_ros import graph
 from advsim_ros.adapters import bridge
 from advsim_ros.adapters import messages as foreign
 from advsim_ros.adapters.profile import StackProfile, load_profile
@@ -24,7 +25,7 @@ from advsim_ros.ros.graph_node import GraphNode, run_node
 from advsim_ros.ros.messages import message_class
 from advsim_ros.ros.stack_io import Acknowledgements, AnswerOutlet, SweepOutlet, relay_topic, to_stack_publisher
 
-NODE_NAME = "stack_adapter"
+NODE_NAME = graph.STACK_ADAPTER.name
 
 
 class StackAdapter(GraphNode):

@@ -11,8 +11,6 @@ from typing import Any
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
-from advsim_ros.ros.lockstep import GRAPH_NODE_NAMES
-
 
 def _qos(profile: Any) -> dict[str, Any]:
     reliability = "reliable" if profile.reliability == ReliabilityPolicy.RELIABLE else "best_effort"
@@ -36,11 +34,12 @@ def _endpoints(node: Node, name: str, namespace: str, publishers: bool) -> list[
     return found
 
 
-def stack_graph(node: Node) -> list[dict[str, Any]]:
-    """Every node on the domain that is not the attack graph's, with what it subscribes to and publishes."""
+def stack_graph(node: Node, graph_nodes: frozenset[str]) -> list[dict[str, Any]]:
+    """Every node on the domain that is not the attack graph's (``graph_nodes``), with what it subscribes to and
+    publishes."""
     nodes = []
     for name, namespace in sorted(node.get_node_names_and_namespaces()):
-        if name in GRAPH_NODE_NAMES:
+        if name in graph_nodes:
             continue
         nodes.append(
             {

@@ -35,10 +35,6 @@ from advsim_ros.ros.identity import ForeignEndpoint, Membership
 POLL = 0.2  # how often a wait re-checks that the stack is still there [s]
 KEPT = 50  # messages remembered per stamped stream
 RELAY_WAIT = 5.0  # longest wait for stack_adapter to pass a frame's inputs on to a timer-driven stack [s]
-# Nodes of the attack graph itself; every other node on the domain belongs to the stack.
-GRAPH_NODE_NAMES = frozenset(
-    {"scenario_player", "lidar_resim", "perturber", "search", "scorer", "advsim_monitor", "stack_adapter"}
-)
 
 
 class StampedArrivals:
@@ -77,12 +73,14 @@ class StackNames:
 
     The contract's names, unless the stack keeps names of its own and stack_adapter bridges them
     (``advsim attack --remap CONTRACT:=STACK``): then the stack is looked for under its names.
+    Endpoints of the attack graph's own nodes (advsim_ros.graph.NAMES, given by the caller) are never the stack's.
     """
 
+    graph_nodes: frozenset[str]  # the attack graph's node names: every other node on the domain is the stack's
     renamed: Mapping[str, str] = field(default_factory=dict)  # contract topic -> the stack's topic
 
     @staticmethod
-    def from_pairs(pairs: Iterable[str]) -> StackNames:
+    def from_pairs(graph_nodes: frozenset[str], pairs: Iterable[str]) -> StackNames:
         """From "CONTRACT:=STACK" strings (the player's stack_topics parameter)."""
         renamed = {}
         for pair in pairs:
@@ -90,20 +88,20 @@ class StackNames:
             if not separator or not contract or not stack:
                 raise ScenarioError(f"/scenario_player stack_topics: expected CONTRACT:=STACK, got {pair!r}")
             renamed[contract] = stack
-        return StackNames(renamed)
+        return StackNames(graph_nodes, renamed)
 
     def __call__(self, topic: topics.TopicSpec) -> str:
         return self.renamed.get(topic.name, topic.name)
 
 
-def stack_endpoints(node: Node, topic: str, publishers: bool) -> list[Any]:
+def stack_endpoints(node: Node, topic: str, publishers: bool, names: StackNames) -> list[Any]:
     """Endpoints of the stack (every node not of the attack graph) on a topic."""
     infos = node.get_publishers_info_by_topic(topic) if publishers else node.get_subscriptions_info_by_topic(topic)
-    return [info for info in infos if info.node_name not in GRAPH_NODE_NAMES]
+    return [info for info in infos if info.node_name not in names.graph_nodes]
 
 
 def stack_publishes(node: Node, topic: topics.TopicSpec, names: StackNames) -> bool:
-    return bool(stack_endpoints(node, names(topic), True))
+    return bool(stack_endpoints(node, names(topic), True, names))
 
 
 # Topics the player and the stack exchange: every endpoint of them must be matched before a query.
@@ -116,14 +114,16 @@ STACK_TOPICS = (
 
 
 def _stack_gids(node: Node, names: StackNames) -> frozenset[bytes]:
-    endpoints = stack_endpoints(node, names(topics.LIDAR), False) + stack_endpoints(node, names(topics.PLAN), True)
+    endpoints = stack_endpoints(node, names(topics.LIDAR), False, names) + stack_endpoints(
+        node, names(topics.PLAN), True, names
+    )
     return frozenset(bytes(info.endpoint_gid) for info in endpoints)
 
 
 def connected(node: Node, latched: Iterable[Any], names: StackNames) -> bool:
     """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, and every
     endpoint the player shares with them (latched topics included) is matched on the player's side."""
-    stack = bool(stack_endpoints(node, names(topics.LIDAR), False)) and stack_publishes(node, topics.PLAN, names)
+    stack = bool(stack_endpoints(node, names(topics.LIDAR), False, names)) and stack_publishes(node, topics.PLAN, names)
     resim = node.count_subscribers(topics.FRAME_REQUEST.name) >= 1 and node.count_publishers(topics.RENDERED.name) >= 1
     to_stack = {topic.name for topic in TO_STACK}
     from_stack = {topic.name for topic in FROM_STACK}
@@ -195,7 +195,7 @@ class StackLiveness:
         self.foreign: dict[ForeignEndpoint, None] = {}  # in the order they were seen
 
     def _publishers(self) -> frozenset[bytes]:
-        endpoints = stack_endpoints(self._node, self._names(topics.PLAN), True)
+        endpoints = stack_endpoints(self._node, self._names(topics.PLAN), True, self._names)
         return frozenset(bytes(info.endpoint_gid) for info in endpoints)
 
     def begin(self) -> None:
@@ -264,7 +264,7 @@ class PlayerConfig:
             raise ScenarioError("/scenario_player reactive_actors: only with loop closed (open loop drives nothing)")
         if self.prefetch_frames < 1:
             raise ScenarioError(f"/scenario_player prefetch_frames: must be >= 1, got {self.prefetch_frames}")
-        StackNames.from_pairs(self.stack_topics)  # refused here, with the pair named, when malformed
+        StackNames.from_pairs(frozenset(), self.stack_topics)  # refused here, with the pair named, when malformed
 
 
 @dataclass

@@ -39,8 +39,6 @@ from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode
 from advsim_ros.ros.introspect import describe, stack_graph
 from advsim_ros.ros.lockstep import StackNames, stack_endpoints
 
-MONITOR_NODE = "advsim_monitor"
-
 
 @dataclass
 class FinishedQuery:
@@ -89,15 +87,16 @@ class AttackMonitor:
     def __init__(
         self,
         run_id: int,
+        names: StackNames,
+        node_name: str,  # advsim_ros.graph.MONITOR's
         skip: frozenset[int] = frozenset(),
-        names: StackNames | None = None,
         domain_id: int | None = None,
         lane: int = 0,
     ) -> None:
         self.run_id = run_id
         self.domain_id = domain_id
-        self.node_name = MONITOR_NODE if lane == 0 else f"{MONITOR_NODE}_lane{lane}"  # loggers are per process
-        self.stack_names = names or StackNames()
+        self.node_name = node_name if lane == 0 else f"{node_name}_lane{lane}"  # loggers are per process
+        self.stack_names = names
         self.skip = skip  # queries already journaled (a resumed attack): never handed out again
         self.selection: SelectionRecord | None = None
         self.progress = Progress()
@@ -206,8 +205,8 @@ class AttackMonitor:
         """Whether the stack listens to the LiDAR and publishes plans; if not, what it does instead."""
         node = self.node
         lidar_topic, plan_topic = self.stack_names(topics.LIDAR), self.stack_names(topics.PLAN)
-        lidar = bool(stack_endpoints(node, lidar_topic, False))
-        plans = bool(stack_endpoints(node, plan_topic, True))
+        lidar = bool(stack_endpoints(node, lidar_topic, False, self.stack_names))
+        plans = bool(stack_endpoints(node, plan_topic, True, self.stack_names))
         if lidar and plans:
             return True, ""
         missing = []
@@ -215,9 +214,9 @@ class AttackMonitor:
             missing.append(f"no subscription to the LiDAR topic {lidar_topic}")
         if not plans:
             missing.append(f"no publisher of the plan topic {plan_topic}")
-        seen = describe(stack_graph(node))
+        seen = describe(stack_graph(node, self.stack_names.graph_nodes))
         return False, f"{' and '.join(missing)} ({seen})"
 
     def stack_graph(self) -> list[dict[str, Any]]:
         """The stack's nodes with their topics, types and QoS (ros.introspect)."""
-        return stack_graph(self.node)
+        return stack_graph(self.node, self.stack_names.graph_nodes)

@@ -23,7 +23,6 @@ The names below are the package's public interface; import them from here.
 """
 
 from advsim_ros.core.feasibility.config import (
-    NODE_NAME,
     STATE_OFFSETS,
     PerturberConfig,
     load_perturber_config,
@@ -57,7 +56,6 @@ __all__ = [
     "EGO_ID",
     "KINEMATIC_CHECKS",
     "MAX_JOINT_CHECKED",
-    "NODE_NAME",
     "STATE_OFFSETS",
     "STATIC_SPAN",
     "ActorReference",

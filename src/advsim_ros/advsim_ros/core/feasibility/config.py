@@ -16,7 +16,6 @@ from advsim_ros.core.dynamics import KinematicBounds
 from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.types import ActorClass, ScenarioError
 
-NODE_NAME = "perturber"
 STATE_OFFSETS = 4  # dx0, dy0, dheading0, dv0
 
 
@@ -109,13 +108,14 @@ class PerturberConfig:
         return STATE_OFFSETS + 2 * self.num_knots
 
     @classmethod
-    def from_mapping(cls, parameters: Mapping[str, Any], context: str = f"/{NODE_NAME}") -> PerturberConfig:
+    def from_mapping(cls, parameters: Mapping[str, Any], context: str = "PerturberConfig") -> PerturberConfig:
         return config_from_mapping(cls, parameters, context)
 
 
-def load_perturber_config(path: Path) -> PerturberConfig:
-    """The /perturber parameters of a YAML file in the ROS shape; errors name the file and key."""
-    return PerturberConfig.from_mapping(load_node_params(path, NODE_NAME), f"{path} /{NODE_NAME}")
+def load_perturber_config(path: Path, *, node: str) -> PerturberConfig:
+    """The parameters of node ``node`` (advsim_ros.graph names it) in a YAML file in the ROS shape; errors name
+    the file and key."""
+    return PerturberConfig.from_mapping(load_node_params(path, node), f"{path} /{node}")
 
 
 def perturbation_names(num_knots: int) -> tuple[str, ...]:

@@ -8,7 +8,6 @@ from pathlib import Path
 from advsim_ros.core.params import config_from_mapping, load_node_params
 from advsim_ros.core.types import ScenarioError
 
-RESIM_NODE = "lidar_resim"
 RESIM_PARAMS_KEY = "resim"
 
 
@@ -92,11 +91,11 @@ class ResimConfig:
         )
 
 
-def load_resim_config(path: Path) -> ResimConfig:
-    """The ``resim`` settings of /lidar_resim in a parameters file (missing keys keep their defaults)."""
-    parameters = load_node_params(path, RESIM_NODE)
-    section = parameters.get(RESIM_PARAMS_KEY, {})
-    return config_from_mapping(ResimConfig, section, f"{path} /{RESIM_NODE} {RESIM_PARAMS_KEY}")
+def load_resim_config(path: Path, *, node: str) -> ResimConfig:
+    """The ``resim`` settings of node ``node`` (advsim_ros.graph names it) in a parameters file (missing keys keep
+    their defaults)."""
+    section = load_node_params(path, node).get(RESIM_PARAMS_KEY, {})
+    return config_from_mapping(ResimConfig, section, f"{path} /{node} {RESIM_PARAMS_KEY}")
 
 
 @dataclass(frozen=True)

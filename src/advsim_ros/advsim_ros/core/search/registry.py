@@ -27,7 +27,6 @@ from advsim_ros.core.search.base import SearchAlgorithm, SearchConfig, SearchErr
 from advsim_ros.core.search.driver import DriverConfig
 
 ALGORITHM_NAMES = ("bo", "ga", "simba", "nes", "bandit", "random")
-SEARCH_NODE_NAME = "search"  # node whose parameters params/search.yaml holds
 _log = logging.getLogger(__name__)
 
 # name -> (module.algorithm class, module.config class); a config lives apart from a heavy algorithm
@@ -112,10 +111,11 @@ class SearchSettings:
     seed: int  # seeds the search's numpy Generator [1]
 
 
-def load_search_settings(path: Path, algorithm: str | None = None) -> SearchSettings:
-    """Read params/search.yaml (node /search); `algorithm` overrides the file's choice."""
-    parameters = renamed_sections(load_node_params(path, SEARCH_NODE_NAME), f"{path} /{SEARCH_NODE_NAME}")
-    context = f"{path} /{SEARCH_NODE_NAME}"
+def load_search_settings(path: Path, algorithm: str | None = None, *, node: str) -> SearchSettings:
+    """Read the parameters of node ``node`` (advsim_ros.graph names it) in params/search.yaml; `algorithm`
+    overrides the file's choice."""
+    context = f"{path} /{node}"
+    parameters = renamed_sections(load_node_params(path, node), context)
     name = parameters.get("algorithm") if algorithm is None else algorithm
     name = accept_algorithm(name) if isinstance(name, str) else name
     if not isinstance(name, str) or name not in ALGORITHM_NAMES:
