@@ -59,6 +59,10 @@ if ! stamp_ok requirements "$req_hash"; then
   pip_install --upgrade pip==26.3 setuptools==84.2.1 wheel==0.48.0
   # torch first and alone, so that nothing can pull a CUDA build in its place.
   pip_install "$(grep '^torch==' requirements/base.txt)"
+  # open3d-cpu installs the same files as open3d (the CUDA build an earlier set-up installed): that one goes first.
+  if "$VENV/bin/python" -m pip show -q open3d >/dev/null 2>&1; then
+    "$VENV/bin/python" -m pip uninstall -y -q open3d
+  fi
   pip_install -r requirements/base.txt -r requirements/dev.txt
   rm -f "$STAMPS"/msgs-* "$STAMPS/package"
   stamp_set requirements "$req_hash"

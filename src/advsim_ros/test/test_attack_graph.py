@@ -18,6 +18,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from advsim_ros.attack import AttackOptions, StackSpec, run_attack
 from advsim_ros.attack.outputs import recorded_score
+from advsim_ros.viz.outputs import write_viz_outputs
 
 QUERIES = 8
 
@@ -198,5 +199,10 @@ def test_the_attack_writes_markers_an_animated_bev_and_a_report_and_its_bag_expo
     assert summary["outputs"]["report"] == str(out.resolve() / "report.html")
     assert 0 < (out / "bev.gif").stat().st_size < 3_000_000
     assert "data:image/gif;base64," in (out / "report.html").read_text()
+    # the attack drew them from what it had just written; `advsim report` draws them from the bag: the same bytes
+    drawn = {name: (out / name).read_bytes() for name in ("bev.gif", "report.html")}
+    write_viz_outputs(out, summary)
+    for name, content in drawn.items():
+        assert (out / name).read_bytes() == content, name
     exported = export_openscenario(out / "adversarial", tmp_path / "scenario.xosc")
     assert perturbed_entities(exported.path) == set(summary["perturbed_actors"])

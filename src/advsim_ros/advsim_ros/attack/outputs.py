@@ -139,7 +139,8 @@ def write_outputs(
     if options.visual_report and summary["outputs"].get("adversarial_bag"):
         from advsim_ros.viz.outputs import write_viz_outputs
 
-        summary["outputs"].update(write_viz_outputs(out_dir, summary, original=original))
+        written = (adversarial, final.plan if final else None)  # what the bag holds: not read back
+        summary["outputs"].update(write_viz_outputs(out_dir, summary, original=original, written=written))
         write_json_atomically(out_dir / "summary.json", summary)
     return summary
 

@@ -5,8 +5,9 @@ Each frame of the window (1 s of history, then the 5 s the plan covers) shows th
 trajectory, the stack's plan of the decision frame and the SDV's box where the plan puts it at
 that time (orange; red with a star from the first collision on), and the LiDAR the stack saw:
 each history frame's sweep, then the decision frame's sweep held (the stack sees only 1 s). The
-collision frame is held for a moment so that the instant is not missed. matplotlib's animation
-draws the frames (blitting the static background) and Pillow writes the GIF.
+collision frame is held for a moment so that the instant is not missed. matplotlib draws the
+frames (blitting the static background; a text that shows again is pasted, not rasterised again)
+and Pillow writes the GIF.
 """
 
 from __future__ import annotations
@@ -183,29 +184,34 @@ def write_bev_animation(view: AttackView, path: Path, config: AnimationConfig | 
             axis.set_ylabel("y [m]", fontsize=8)
         axes[-1].set_xlabel("x [m]", fontsize=8)
         axes[-1].legend(loc="upper right", fontsize=6, framealpha=0.8)
-        suptitle = figure.suptitle("", fontsize=9, animated=True)
-        figure.tight_layout(rect=(0.0, 0.0, 1.0, 0.92))
+        scenario_id = summary.get("scenario", {}).get("scenario_id", view.adversarial.scenario_id)
+        figure.suptitle(f"{scenario_id}   red = perturbed", fontsize=9, y=0.985)
+        # the moving part of the heading: the time (left) and the phase of the window (right)
+        clock = figure.text(0.02, 0.915, "", fontsize=8, animated=True)
+        phase = figure.text(0.98, 0.915, "", fontsize=8, ha="right", animated=True)
+        figure.tight_layout(rect=(0.0, 0.0, 1.0, 0.9))
         for axis in axes:  # equal scale: widen the limits to the panel's shape (the panel keeps its size)
             box = axis.get_position()
             panel_ratio = (box.height * config.height) / (box.width * config.width)
             (left, right), (bottom, top) = _fit((x0, x1), (y0, y1), panel_ratio)
             axis.set_xlim(left, right)
             axis.set_ylim(bottom, top)
-        scenario_id = summary.get("scenario", {}).get("scenario_id", view.adversarial.scenario_id)
         canvas = figure.canvas
         canvas.draw()  # the static background, once
         background = canvas.copy_from_bbox(figure.bbox)  # type: ignore[attr-defined]
+        texts = _TextStamps(figure)
         images = []
         for index in _frames(view, config):
             stamp = int(stamps[index])
-            seconds = (stamp - decision_ns) / NS_PER_S
-            phase = "history: the stack sees LiDAR" if stamp <= decision_ns else "the stack's plan, open loop"
-            suptitle.set_text(f"{scenario_id}   t = {seconds:+.1f} s from the decision   ({phase})   red = perturbed")
+            clock.set_text(f"t = {(stamp - decision_ns) / NS_PER_S:+.1f} s from the decision")
+            phase.set_text("history: the stack sees LiDAR" if stamp <= decision_ns else "the stack's plan, open loop")
             canvas.restore_region(background)  # type: ignore[attr-defined]
-            for updater in updaters:
-                for artist in updater(stamp):
+            moving = [updater(stamp) for updater in updaters]
+            for text in (clock, phase, *(title for _, title in moving)):
+                texts.draw(text)  # on the bare background, before anything moving can overlap them
+            for artists, _ in moving:
+                for artist in artists:
                     figure.draw_artist(artist)
-            figure.draw_artist(suptitle)
             rgba = np.asarray(canvas.buffer_rgba())  # type: ignore[attr-defined]
             images.append(Image.fromarray(rgba[..., :3].copy()))
     finally:
@@ -234,7 +240,8 @@ def write_bev_animation(view: AttackView, path: Path, config: AnimationConfig | 
 def _draw_panel(
     axis: Any, panel: _Panel, view: AttackView, decision_ns: int, config: AnimationConfig, polygon: Any
 ) -> Any:
-    """Draw the static parts of a panel; return the function that moves its dynamic parts to a stamp."""
+    """Draw the static parts of a panel; return the function that moves its dynamic parts to a stamp
+    (it returns them and the panel's title)."""
     scenario = panel.scenario
     moved = set(view.perturbed_ids)
     lidar = axis.scatter(np.empty(0), np.empty(0), s=0.3, c="0.6", linewidths=0, zorder=1, animated=True)
@@ -286,7 +293,7 @@ def _draw_panel(
         else None
     )
 
-    def update(stamp: int) -> list[Any]:
+    def update(stamp: int) -> tuple[list[Any], Any]:
         lidar.set_offsets(_lidar_world(scenario, stamp, decision_ns, config.max_points))
         for patch, actor_stamps, actor in boxes:
             try:
@@ -315,6 +322,26 @@ def _draw_panel(
             star.set_data([], [])
             title.set_text(base_title)
             title.set_color("black")
-        return [lidar, *(patch for patch, _, _ in boxes), ego_patch, planned_patch, star, title]
+        return [lidar, *(patch for patch, _, _ in boxes), ego_patch, planned_patch, star], title
 
     return update
+
+
+class _TextStamps:
+    """Draws animated texts, each look once: rasterising glyphs was most of a frame's cost (a title
+    changes twice in a window), so a text seen before is pasted from the pixels it drew then."""
+
+    def __init__(self, figure: Any) -> None:
+        self.figure = figure
+        self.drawn: dict[tuple[int, str, str], Any] = {}
+
+    def draw(self, text: Any) -> None:
+        key = (id(text), text.get_text(), str(text.get_color()))
+        region = self.drawn.get(key)
+        canvas = self.figure.canvas
+        if region is not None:
+            canvas.restore_region(region)
+            return
+        self.figure.draw_artist(text)
+        box = text.get_window_extent(canvas.get_renderer()).padded(2)
+        self.drawn[key] = canvas.copy_from_bbox(box)

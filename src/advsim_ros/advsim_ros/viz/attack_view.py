@@ -88,17 +88,19 @@ def load_attack_view(
     summary: Mapping[str, Any] | Path,
     bag_config: BagConfig | None = None,
     original: Scenario | None = None,
+    written: tuple[Scenario, Plan | None] | None = None,
 ) -> AttackView:
     """Read an attack's outputs: the adversarial bag and its summary (dict or summary.json path).
 
     Both bags are read in ``bag_config``'s layout (--bag-params), else in the one the summary recorded
     (the attack wrote adversarial/ in its source bag's layout), else in the contract's. ``original``: the
-    attacked window of the source log, when the caller has it (else read from the source bag)."""
+    attacked window of the source log, when the caller has it (else read from the source bag). ``written``:
+    the adversarial scenario and plan the caller has just written to ``bag`` (else read from it)."""
     values = load_summary(summary)
     bag = Path(bag)
     scenario = values["scenario"]
     layout = bag_config or bag_layout_of(scenario.get("bag_params"), "summary.json scenario.bag_params")
-    adversarial = read_scenario_bag(bag, config=layout, load_sweeps=True)
+    adversarial = written[0] if written else read_scenario_bag(bag, config=layout, load_sweeps=True)
     window = WindowConfig(
         window_start_frame=int(scenario["window_start_frame"]),
         history_frames=int(scenario["history_frames"]),
@@ -113,7 +115,7 @@ def load_attack_view(
     if original is None or not np.array_equal(original.frame_stamps_ns, adversarial.frame_stamps_ns):
         original = _original_window(Path(scenario["bag"]), window, adversarial, layout)
     original_plan = _original_plan(values)
-    adversarial_plan = bag_plan(bag)
+    adversarial_plan = written[1] if written else bag_plan(bag)
     decision = window.decision_index
     config = MetricsConfig()
     return AttackView(
