@@ -61,8 +61,11 @@ def write_outputs(
     domain_id: int | None,
     resources: dict[str, Any],
 ) -> dict[str, Any]:
-    """Write the adversarial bag (attacks only), summary.json and bev.png; return the summary."""
-    from advsim_ros.attack.bev import draw_bev
+    """Write the adversarial bag (attacks only), summary.json and bev.png (bev.gif and report.html too unless
+    --no-visuals); return the summary."""
+    from advsim_ros.viz.attack_view import load_attack_view
+    from advsim_ros.viz.bev import write_bev_still
+    from advsim_ros.viz.outputs import write_view_outputs
 
     out_dir = options.out_dir.resolve()
     records = journal.records
@@ -125,22 +128,17 @@ def write_outputs(
             summary["recorded_inputs_reproduced"] = reproduced
     write_json_atomically(out_dir / "summary.json", summary)
     by_id = {record.query_id: record for record in records}
-    original_plan = by_id[0].plan if 0 in by_id else None
-    final = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
+    shown = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
     if options.replay_only and records:
-        final = records[-1]
-    shown = (by_id.get(0), final)
-    driven = [None if r is None or r.executed is None else r.executed.xy for r in shown]
-    reacted = [() if r is None else r.reacted for r in shown]
-    plans = (original_plan, final.plan if final else None)
-    draw_bev(out_dir / "bev.png", scenario, adversarial, plans, window, summary, (driven[0], driven[1]),
-             (reacted[0], reacted[1]))  # fmt: skip
-    # bev.gif and report.html from the bag and summary just written (`advsim report OUTDIR` draws them later)
+        shown = records[-1]
+    # what the bag and the journal hold, not read back: the window (original and adversarial) and the shown plan
+    bag = out_dir / ADVERSARIAL_BAG if summary["outputs"].get("adversarial_bag") else checked.bag
+    written = (adversarial, shown.plan if shown else None)
+    view = load_attack_view(bag, summary, checked.bag_config, original, written)
+    write_bev_still(view, out_dir / "bev.png")
+    # bev.gif and report.html (`advsim report OUTDIR` draws them again from the bag and summary.json)
     if options.visual_report and summary["outputs"].get("adversarial_bag"):
-        from advsim_ros.viz.outputs import write_viz_outputs
-
-        written = (adversarial, final.plan if final else None)  # what the bag holds: not read back
-        summary["outputs"].update(write_viz_outputs(out_dir, summary, original=original, written=written))
+        summary["outputs"].update(write_view_outputs(view, out_dir))
         write_json_atomically(out_dir / "summary.json", summary)
     return summary
 

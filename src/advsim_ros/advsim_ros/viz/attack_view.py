@@ -21,9 +21,9 @@ from advsim_ros.contract import names, topics
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.contract.protocol import perturbation_from_msg
 from advsim_ros.core.episode import WindowConfig
-from advsim_ros.core.journal import read_records
+from advsim_ros.core.journal import QueryRecord, read_records
 from advsim_ros.core.metrics import MetricsConfig
-from advsim_ros.core.types import Plan, Scenario, ScenarioError
+from advsim_ros.core.types import ActorTrack, FloatArray, Plan, Scenario, ScenarioError
 from advsim_ros.io.bag import BagConfig, BagReader, bag_layout_of, read_scenario_bag
 from advsim_ros.viz.markers import first_collision_ns
 
@@ -77,6 +77,11 @@ class AttackView:
     decision_index: int  # frame of the window the stack planned from (its last LiDAR sweep)
     adversarial_collision_ns: int | None  # log time of the first collision of the SDV on its plan [ns]
     original_collision_ns: int | None
+    # closed loop: what the ego drove ((K, 2) [m]) and the drives of reactive actors, in each query
+    adversarial_driven: FloatArray | None = None
+    original_driven: FloatArray | None = None
+    adversarial_reacted: tuple[ActorTrack, ...] = ()
+    original_reacted: tuple[ActorTrack, ...] = ()
 
     @property
     def decision_ns(self) -> int:
@@ -114,7 +119,8 @@ def load_attack_view(
     perturbed = tuple(values.get("perturbed_actors") or ()) or bag_perturbed_ids(bag)
     if original is None or not np.array_equal(original.frame_stamps_ns, adversarial.frame_stamps_ns):
         original = _original_window(Path(scenario["bag"]), window, adversarial, layout)
-    original_plan = _original_plan(values)
+    first, shown = _journaled_queries(values)
+    original_plan = first.plan if first else None
     adversarial_plan = written[1] if written else bag_plan(bag)
     decision = window.decision_index
     config = MetricsConfig()
@@ -133,6 +139,10 @@ def load_attack_view(
         original_collision_ns=(
             first_collision_ns(original, original_plan, decision, config) if original and original_plan else None
         ),
+        adversarial_driven=shown.executed.xy if shown and shown.executed else None,
+        original_driven=first.executed.xy if first and first.executed else None,
+        adversarial_reacted=shown.reacted if shown else (),
+        original_reacted=first.reacted if first else (),
     )
 
 
@@ -149,15 +159,18 @@ def _original_window(
     return cropped
 
 
-def _original_plan(summary: Mapping[str, Any]) -> Plan | None:
-    """Query 0's plan from the journal the summary names (None when the journal is gone or has no plan)."""
+def _journaled_queries(summary: Mapping[str, Any]) -> tuple[QueryRecord | None, QueryRecord | None]:
+    """Query 0 and the query the adversarial side shows (the recorded one; a replay's last run) from the
+    journal the summary names; None for each the journal lacks or when it is gone."""
     journal = Path(str((summary.get("outputs") or {}).get("journal", "")))
     if not journal.is_file():
-        return None
-    for record in read_records(journal):
-        if record.query_id == 0:
-            return record.plan
-    return None
+        return None, None
+    records = read_records(journal)
+    by_id = {record.query_id: record for record in records}
+    if "replay" in summary:
+        return by_id.get(0), records[-1] if records else None
+    recorded = summary.get("recorded_query_id")
+    return by_id.get(0), by_id.get(recorded) if isinstance(recorded, int) else None
 
 
 def number(value: Any, digits: int = 3) -> str:
