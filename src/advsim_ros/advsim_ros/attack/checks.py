@@ -22,7 +22,8 @@ from advsim_ros.attack.options import AttackOptions, StackSpec
 from advsim_ros.attack.params import node_files, node_parameters, section
 from advsim_ros.core.curation import CurationConfig, best_window, curate_windows, load_curation_config
 from advsim_ros.core.episode import WindowConfig
-from advsim_ros.core.search.registry import ALGORITHM_NAMES, RENAMED_ALGORITHMS
+from advsim_ros.core.renamed import RENAMED_ALGORITHMS
+from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.core.types import Scenario, ScenarioError
 from advsim_ros.io.bag import BagConfig, check_lidar_sweeps, lidar_topic_of, read_scenario_bag, summarize_bag
 
@@ -133,9 +134,9 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
     for old, new in RENAMED_ALGORITHMS.items():  # attack.run reads the old section as the new one
         if old in search:
             _log.warning("/search: the section %r of the parameters files is deprecated: name it %r", old, new)
-    for node in graph.CONFIGURED:
-        for part in node.sections:
-            key, context = part.key, f"/{node.name}"
+    for declared in graph.CONFIGURED:
+        for part in declared.sections:
+            key, context = part.key, f"/{declared.name}"
             if key == graph.ALGORITHMS:  # the attack's algorithm only (a replay has none)
                 if options.replay_only:
                     continue
@@ -143,6 +144,6 @@ def _check_node_configs(options: AttackOptions, parameters: dict[str, dict[str, 
             else:
                 config = graph.resolve(part.config)
             if part.build:
-                graph.resolve(part.build)(parameters[node.name].get(key, {}), f"{context} {key}")
+                graph.resolve(part.build)(parameters[declared.name].get(key, {}), f"{context} {key}")
             else:
-                section(parameters[node.name], key, config, context)
+                section(parameters[declared.name], key, config, context)

@@ -16,6 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
+
 from advsim_ros import graph
 from advsim_ros.attack.checks import Preflight
 from advsim_ros.attack.controls import controls, finding, query_faults
@@ -80,9 +82,10 @@ def write_outputs(
     faults = query_faults(records, checked.scenario, decision_frame, metrics, drivable)
     for entry in analysis["queries"]:
         entry["fault"] = faults.get(entry["query_id"])
-    best, recorded = analysis.get("best"), analysis.get("recorded_query_id")
+    best, recorded_id = analysis.get("best"), analysis.get("recorded_query_id")
     reproduction = best.get("reproduction") if best else None
-    analysis["finding"] = finding(analysis, analysis["controls"], reproduction, faults.get(recorded))
+    recorded_fault = faults.get(recorded_id) if recorded_id is not None else None
+    analysis["finding"] = finding(analysis, analysis["controls"], reproduction, recorded_fault)
     summary: dict[str, Any] = {
         "scenario": {
             "bag": str(checked.bag),
@@ -218,7 +221,7 @@ def _write_adversarial_bag(
                         recorded.query_id,
                         scenario.scenario_id,
                         recorded.actor_ids,
-                        list(recorded.delta),
+                        np.asarray(recorded.delta, dtype=np.float64),
                         recorded.algorithm,
                     ),
                     0,

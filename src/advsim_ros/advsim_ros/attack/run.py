@@ -37,7 +37,8 @@ from advsim_ros.attack.params import merge_parameters, node_files, node_paramete
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal
-from advsim_ros.core.search.registry import RENAMED_ALGORITHMS, config_from_params
+from advsim_ros.core.renamed import RENAMED_ALGORITHMS
+from advsim_ros.core.search.registry import config_from_params
 from advsim_ros.io.bag import bag_layout_json
 from advsim_ros.ros.launcher import (
     Launcher,
