@@ -34,7 +34,7 @@ HINT = "describe its layout with --bag-params FILE.yaml"
 # every command that reads a bag (a path of subcommands)
 READERS = (
     ("label",), ("curate",), ("attack",), ("replay",), ("doctor",), ("report",), ("campaign",), ("export", "route"),
-    ("export", "openscenario"),
+    ("export", "openscenario"), ("stack", "run"),
 )  # fmt: skip
 
 
@@ -71,7 +71,7 @@ def _argv(path: tuple[str, ...], bag: Path, tmp_path: Path) -> list[str]:
         "label": [str(bag), "-o", out], "curate": [str(bag)], "attack": [str(bag), "-o", out],
         "replay": [str(bag), "-o", out], "doctor": [str(bag), "-o", out], "report": [out],
         "campaign": [str(tmp_path / "campaign.yaml"), "-o", out], "route": [str(bag), "-o", out + ".csv"],
-        "openscenario": [str(bag), "-o", out + ".xosc"],
+        "openscenario": [str(bag), "-o", out + ".xosc"], "run": ["modular", "--bag", str(bag), "-o", out],
     }  # fmt: skip
     return [*path, *arguments[path[-1]]]
 
@@ -157,6 +157,8 @@ def test_curate_and_export_route_read_the_bag_with_bag_params_and_refuse_it_with
     np.testing.assert_allclose([float(rows[-1]["x"]), float(rows[-1]["y"])], scenario.ego.xy[-1], atol=1e-3)
     assert main(["curate", str(bag), "--bag-params", str(params), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["windows"]
+    assert main(["stack", "run", "modular", "--bag", str(bag), "--bag-params", str(params)]) == 0
+    assert json.loads(capsys.readouterr().out)["sweeps"] == 70
     for argv in (["export", "route", str(bag), "-o", str(tmp_path / "again.csv")], ["curate", str(bag)]):
         assert main(argv) == 1
         (line,) = capsys.readouterr().err.strip().splitlines()[-1:]

@@ -6,12 +6,13 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from advsim_ros.core.curation import crop_frames
-from advsim_ros.io.bag import read_scenario_bag, write_scenario_bag
+from advsim_ros.io.bag import bag_layout_json, read_scenario_bag, write_scenario_bag
 from advsim_ros.io.synthetic import SyntheticConfig, generate_synthetic_log
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
@@ -53,6 +54,22 @@ def test_every_shard_reads_back_to_the_samples_the_stack_computes_from_its_bag(s
         assert loaded.sources == expected.sources
     with np.load(tmp_path / "data" / "held_out.npz") as arrays:  # numpy alone reads a shard
         assert arrays["targets"].shape[1:] == (CONFIG.num_steps, 2)
+
+
+def test_a_suite_of_bags_in_a_users_layout_exports_as_recorded(recorded_your_way: Any, tmp_path: Path) -> None:
+    """A campaign on bags recorded one's own way keeps their layout in the suite and its index says so."""
+    suite = tmp_path / "suite"
+    log = generate_synthetic_log(np.random.default_rng(5), SyntheticConfig(), "synthetic_5")
+    window = crop_frames(log.scenario, 10, 69)
+    window = type(window)(**{**window.__dict__, "scenario_id": "synthetic_5@10/adversarial"})
+    layout = recorded_your_way.layout
+    write_scenario_bag(window, suite / "yours", config=layout, source="test")
+    entry = {"name": "yours", "bag": "yours", "found_on": "learned", "bag_params": bag_layout_json(layout)}
+    (suite / "index.json").write_text(json.dumps({"suite_version": 1, "scenarios": [entry]}))
+    written = export_training(suite, tmp_path / "data", CONFIG)
+    expected = samples_from_scenario(read_scenario_bag(suite / "yours", config=layout), CONFIG)
+    assert written.shards[0]["samples"] == expected.count > 0
+    assert np.array_equal(load_shard(tmp_path / "data" / "yours.npz").targets, expected.targets)
 
 
 def test_the_command_writes_the_shards_and_refuses_a_folder_that_is_not_a_suite(suite: Path, tmp_path: Path) -> None:

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from advsim_ros.cli.common import print_result
+from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 
 
 def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -27,10 +28,15 @@ def add_stack_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     run.add_argument("-o", "--out", type=Path, default=None, help="folder for plans.npz and summary.json")
     run.add_argument("--params", type=Path, default=None, help="stack parameters (default params/stack_<stack>.yaml)")
     run.add_argument("--weights", type=Path, default=None, help="learned stack weights (default: the packaged ones)")
+    add_bag_params_option(run)
     run.set_defaults(
         run=lambda args: print_result(
             json.dumps(
-                dataclasses.asdict(commands.run_on_bag(args.stack, args.bag, args.out, args.params, args.weights)),
+                dataclasses.asdict(
+                    commands.run_on_bag(
+                        args.stack, args.bag, args.out, args.params, args.weights, bag_params_config(args.bag_params)
+                    )
+                ),
                 indent=2,
             )
         )

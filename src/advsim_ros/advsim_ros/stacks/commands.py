@@ -9,7 +9,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from advsim_ros.stacks.evaluation import (
 )
 from advsim_ros.stacks.interface import AutonomyStack, StackError
 from advsim_ros.stacks.replay import replay
+
+if TYPE_CHECKING:
+    from advsim_ros.io.bag import BagConfig
 
 STACK_NAMES = ("modular", "reference", "learned")  # "reference" is the modular stack, as in `advsim attack`
 
@@ -82,9 +85,15 @@ class RunSummary:
 
 
 def run_on_bag(
-    stack_name: str, bag: Path, out: Path | None, params: Path | None = None, weights: Path | None = None
+    stack_name: str,
+    bag: Path,
+    out: Path | None,
+    params: Path | None = None,
+    weights: Path | None = None,
+    bag_config: BagConfig | None = None,
 ) -> RunSummary:
-    """Replay every sweep of a scenario bag through the stack, as the topics would deliver them; score the plans.
+    """Replay every sweep of a scenario bag (in ``bag_config``'s layout, --bag-params) through the stack, as the
+    topics would deliver them; score the plans.
 
     Plans are scored (core.metrics) against the bag's ego trajectory and actor tracks
     wherever the log continues for the full horizon. With `out`, plans.npz (per sweep:
@@ -93,7 +102,7 @@ def run_on_bag(
     from advsim_ros.io.bag import read_scenario_bag
 
     stack = make_stack(stack_name, params, weights)
-    scenario = read_scenario_bag(bag, load_sweeps=True)
+    scenario = read_scenario_bag(bag, config=bag_config, load_sweeps=True)
     steps = replay(stack, scenario)
     if not steps:
         raise StackError(f"{bag}: the bag has no LiDAR sweeps to plan from")

@@ -48,7 +48,7 @@ import numpy as np
 from advsim_ros.core.atomic import atomic_file, write_json_atomically
 from advsim_ros.core.curation import CurationConfig, CurationWindow, crop_scenario, curate_windows
 from advsim_ros.core.types import Scenario
-from advsim_ros.io.bag import read_scenario_bag
+from advsim_ros.io.bag import bag_layout_of, read_scenario_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
 from advsim_ros.stacks.interface import StackError
 from advsim_ros.stacks.learned.config import LearnedStackConfig
@@ -114,7 +114,8 @@ def export_training(
     out_dir.mkdir(parents=True, exist_ok=True)
     shards = []
     for entry in scenarios:
-        scenario = read_scenario_bag(suite / entry["bag"])
+        layout = bag_layout_of(entry.get("bag_params"), f"{index_path} {entry['name']} bag_params")
+        scenario = read_scenario_bag(suite / entry["bag"], config=layout)  # in the layout the attack wrote it
         log_id, first = source_window(scenario.scenario_id)
         split = window_split(log_id, first, scenario.num_frames, config)
         data = samples_from_scenario(scenario, config)
