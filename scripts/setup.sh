@@ -51,6 +51,7 @@ fi
 # 2. Virtual environment with the pinned requirements.
 req_hash=$(hash_of requirements/base.txt requirements/dev.txt)
 if [ ! -x "$VENV/bin/python" ]; then
+  log "first set-up: about 3 minutes on a 2-core machine (2.7 GB of packages into .venv; longer if pip downloads them)"
   log "creating $VENV"
   "$PYTHON" -m venv "$VENV"
 fi
