@@ -1,7 +1,8 @@
 """A stack attached the way a user attached theirs: two plain rclpy scripts, one profile, run from anywhere.
 
 The scripts (processes/lidar_clusterer.py, processes/route_planner.py) lie in a folder of the user's
-with the planner's route (a CSV it opens relative to its working directory, named by $ROUTE_CSV);
+with the planner's route (a GeoJSON line written by `advsim export route`, which it opens relative to its
+working directory, named by $ROUTE_FILE);
 the clusterer reads the sweeps with sensor_msgs_py.point_cloud2, which the ROS 2 wheels lack. The
 profile starts both by path in that folder (`cwd`, `env`) and adapts their GNSS pose and spatial
 plan; advsim runs from somewhere else. Without `cwd` the planner never plans, and `advsim doctor`
@@ -18,25 +19,18 @@ from pathlib import Path
 
 import yaml
 
-from advsim_ros.adapters.plans import geodetic_of
-from advsim_ros.adapters.profile import Datum
-from advsim_ros.io.bag import read_scenario_bag
-
 PROCESSES = Path(__file__).resolve().parent / "processes"
 DATUM = {"latitude": 49.0, "longitude": 8.4, "altitude": 110.0}
 
 
-def _users_folder(bag: Path, folder: Path) -> None:
-    """The user's folder: the two scripts and the route, the logged drive as latitude,longitude waypoints."""
+def _users_folder(bag: Path, folder: Path, profile: Path) -> None:
+    """The user's folder: the two scripts and the route, the logged drive as `advsim export route` writes it."""
     folder.mkdir()
     for script in ("lidar_clusterer.py", "route_planner.py"):
         shutil.copy(PROCESSES / script, folder / script)
-    datum = Datum(**DATUM)
-    lines = []
-    for east, north in read_scenario_bag(bag, load_sweeps=False).ego.xy:
-        latitude, longitude, _ = geodetic_of(datum, float(east), float(north), 0.0)
-        lines.append(f"{latitude:.9f},{longitude:.9f}\n")
-    (folder / "waypoints.csv").write_text("".join(lines))
+    route = folder / "waypoints.geojson"
+    exported = _advsim("export", "route", str(bag), "--stack-profile", str(profile), "-o", str(route))
+    assert exported.returncode == 0, exported.stderr
 
 
 def _profile(path: Path, folder: Path, cwd: bool) -> Path:
@@ -48,7 +42,7 @@ def _profile(path: Path, folder: Path, cwd: bool) -> Path:
     profile = {
         "profile": 1,
         "name": "users_stack",
-        "processes": [clusterer, {**planner, "env": {"ROUTE_CSV": "waypoints.csv"}}],
+        "processes": [clusterer, {**planner, "env": {"ROUTE_FILE": "waypoints.geojson"}}],
         "timing": {"mode": "timer"},
         "inputs": {"lidar": {"topic": "/velodyne_points"}, "pose": pose},
         "outputs": {"plan": plan},
@@ -66,9 +60,9 @@ def test_a_users_two_script_stack_is_attacked_from_a_profile_with_cwd_and_env(
     synthetic_bag: Path, tmp_path: Path
 ) -> None:
     folder = tmp_path / "my_stack"
-    _users_folder(synthetic_bag, folder)
-
     lost_profile = _profile(tmp_path / "lost.yaml", folder, cwd=False)
+    _users_folder(synthetic_bag, folder, lost_profile)
+
     lost = _advsim("doctor", str(synthetic_bag), "--stack-profile", str(lost_profile), "--plan-timeout", "5",
                    "-o", str(tmp_path / "lost"))  # fmt: skip
     assert lost.returncode == 1, lost.stdout[-3000:] + lost.stderr[-2000:]
@@ -77,7 +71,7 @@ def test_a_users_two_script_stack_is_attacked_from_a_profile_with_cwd_and_env(
     assert any(line.startswith("plans: 0 of") for line in report[:verdict]), lost.stdout
     tail = "\n".join(report[verdict + 1 :])
     assert f"the last lines of the stack's log {tmp_path / 'lost' / 'run' / 'logs' / 'planner.log'}:" in tail
-    assert "cannot read the route waypoints.csv" in tail  # the reason, from the planner's own log
+    assert "cannot read the route waypoints.geojson" in tail  # the reason, from the planner's own log
 
     out = tmp_path / "attack"
     attacked = _advsim(
@@ -89,5 +83,5 @@ def test_a_users_two_script_stack_is_attacked_from_a_profile_with_cwd_and_env(
     summary = json.loads((out / "summary.json").read_text())
     assert {query["score"]["status"] for query in summary["queries"]} == {"ok"}
     logs = out / "run" / "logs"
-    assert "route waypoints.csv: " in (logs / "planner.log").read_text()
+    assert "route waypoints.geojson: " in (logs / "planner.log").read_text()
     assert "points read with sensor_msgs_py" in (logs / "clusterer.log").read_text()

@@ -1,14 +1,15 @@
 """Test process: a GNSS route planner as a third party writes one (plain rclpy, started by path).
 
-Its route is a CSV of latitude,longitude waypoints in its working directory ($ROUTE_CSV, default
-route.csv). It localises from sensor_msgs/NavSatFix on /gps/fix and, on a 10 Hz timer of the sim
-clock, publishes a spatial nav_msgs/Path (positions only) along the route from the waypoint nearest
-to it, 60 m ahead or 6 m when lidar_clusterer.py says the corridor is blocked, in an east-north-up
-`map` frame anchored at its first fix. A route it cannot read is logged and it never plans, as the
-user's planner did when started from another folder.
+Its route is a GeoJSON LineString of longitude,latitude waypoints in its working directory
+($ROUTE_FILE, default route.geojson), as `advsim export route ... -o route.geojson` writes one. It
+localises from sensor_msgs/NavSatFix on /gps/fix and, on a 10 Hz timer of the sim clock, publishes
+a spatial nav_msgs/Path (positions only) along the route from the waypoint nearest to it, 60 m
+ahead or 6 m when lidar_clusterer.py says the corridor is blocked, in an east-north-up `map` frame
+anchored at its first fix. A route it cannot read is logged and it never plans, as the user's
+planner did when started from another folder.
 """
 
-import csv
+import json
 import math
 import os
 
@@ -46,11 +47,12 @@ class RoutePlanner(Node):
         self.blocked = message.data
 
     def load_route(self) -> None:
-        name = os.environ.get("ROUTE_CSV", "route.csv")
+        name = os.environ.get("ROUTE_FILE", "route.geojson")
         try:
-            with open(name, newline="") as file:
-                waypoints = [(float(row[0]), float(row[1])) for row in csv.reader(file)]
-        except (OSError, ValueError, IndexError) as error:
+            with open(name) as file:
+                line = next(f for f in json.load(file)["features"] if f["geometry"]["type"] == "LineString")
+            waypoints = [(float(lat), float(lon)) for lon, lat in line["geometry"]["coordinates"]]
+        except (OSError, ValueError, KeyError, StopIteration) as error:
             self.failed = True
             self.get_logger().error(f"cannot read the route {name} in {os.getcwd()}: {error!r}")
             return
