@@ -12,13 +12,22 @@ import functools
 import os
 import struct
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from advsim_ros.contract import names
 from advsim_ros.core.types import ScenarioError
+
+if TYPE_CHECKING:
+    from rosbags.interfaces.typing import Typesdict
+
+# A message object: a rosbags typestore message or an rclpy one. Untyped at the DDS/rosbags boundary:
+# rosbags builds its message classes at run time from .msg definitions (no static type names them) and
+# the graph's code reads rclpy's and rosbags' objects alike by field name. The builders and parsers of
+# contract/ turn them into typed records; nothing else of the package should need this alias.
+Msg: TypeAlias = Any
 
 MSG_DIR_ENV = "ADVSIM_MSG_DIR"  # folder of advsim_msgs/msg/*.msg, overriding the search below
 ADVSIM_MSGS = "advsim_msgs"
@@ -75,11 +84,11 @@ def _installed_msg_dir(package: str) -> Path | None:
     return folder if folder.is_dir() and any(folder.glob("*.msg")) else None
 
 
-def _typesdict(package: str, stems: tuple[str, ...] | None = None) -> dict[str, Any]:
+def _typesdict(package: str, stems: tuple[str, ...] | None = None) -> Typesdict:
     """Field definitions of a package's messages (all of its .msg files, or those named), parsed."""
     folder = msg_definitions_dir(package)
     paths = sorted(folder.glob("*.msg")) if stems is None else [folder / f"{stem}.msg" for stem in stems]
-    types: dict[str, Any] = {}
+    types: Typesdict = {}
     for path in paths:
         try:
             text = path.read_text(encoding="utf-8")
@@ -90,15 +99,15 @@ def _typesdict(package: str, stems: tuple[str, ...] | None = None) -> dict[str, 
 
 
 @functools.cache
-def advsim_typesdict() -> dict[str, Any]:
+def advsim_typesdict() -> Typesdict:
     """advsim_msgs' field definitions, parsed from the .msg files."""
     return _typesdict(ADVSIM_MSGS)
 
 
 @functools.cache
-def autoware_typesdict() -> dict[str, Any]:
+def autoware_typesdict() -> Typesdict:
     """The Autoware messages' field definitions (AUTOWARE_MESSAGES), parsed from the .msg files."""
-    types: dict[str, Any] = {}
+    types: Typesdict = {}
     for package, stems in AUTOWARE_MESSAGES.items():
         types.update(_typesdict(package, stems))
     return types
@@ -114,17 +123,18 @@ def typestore() -> Typestore:
     return store
 
 
-def message(type_name: str, **fields: Any) -> Any:
-    """A message object of the shared typestore."""
+def message(type_name: str, **fields: Msg) -> Msg:
+    """A message object of the shared typestore; ``fields`` are its field values (scalars, arrays, nested
+    messages), untyped like the message itself."""
     return typestore().types[type_name](**fields)
 
 
-def encode(value: Any) -> bytes:
+def encode(value: Msg) -> bytes:
     """CDR bytes of a typestore message object."""
     return bytes(typestore().serialize_cdr(value, value.__msgtype__))
 
 
-def decode(raw: bytes | memoryview, type_name: str) -> Any:
+def decode(raw: bytes | memoryview, type_name: str) -> Msg:
     """A typestore message object from CDR bytes; ContractError when they do not decode as that type."""
     try:
         return typestore().deserialize_cdr(raw, type_name)
@@ -162,17 +172,17 @@ def cdr_header(payload: bytearray, value_ns: int, frame_id: str) -> None:
 # ----------------------------------------------------------------------------- stamps and headers
 
 
-def stamp_ns(time: Any) -> int:
+def stamp_ns(time: Msg) -> int:
     """builtin_interfaces/Time (rclpy or rosbags object) as integer nanoseconds."""
     return int(time.sec) * NS_PER_S + int(time.nanosec)
 
 
-def time_msg(value_ns: int) -> Any:
+def time_msg(value_ns: int) -> Msg:
     sec, nanosec = divmod(int(value_ns), NS_PER_S)
     return message(names.TIME, sec=sec, nanosec=nanosec)
 
 
-def header_msg(value_ns: int, frame_id: str) -> Any:
+def header_msg(value_ns: int, frame_id: str) -> Msg:
     return message(names.HEADER, stamp=time_msg(value_ns), frame_id=frame_id)
 
 

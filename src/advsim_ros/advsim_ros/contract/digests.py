@@ -9,10 +9,8 @@ bytes and answered the same plans.
 
 from __future__ import annotations
 
-from typing import Any
-
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, after_stamp, decode, encode
+from advsim_ros.contract.codec import ContractError, Msg, after_stamp, decode, encode
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.types import FloatArray
@@ -45,7 +43,7 @@ class PlanDigest:
     def __init__(self) -> None:
         self._digest = Digest("stack plans")
 
-    def plan(self, path: Any, sim_offset_ns: int) -> None:
+    def plan(self, path: Msg, sim_offset_ns: int) -> None:
         try:
             plan = plan_from_path(path, sim_offset_ns)
         except ContractError as error:

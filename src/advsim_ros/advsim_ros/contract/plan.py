@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import struct
-from typing import Any
 
 import numpy as np
 
@@ -12,6 +11,7 @@ from advsim_ros.contract import names
 from advsim_ros.contract.codec import (
     CDR_LE_HEADER,
     ContractError,
+    Msg,
     cdr_align,
     cdr_header,
     header_msg,
@@ -24,7 +24,7 @@ from advsim_ros.core.types import FloatArray, Plan
 PLAN_STEP_NS = 100_000_000  # poses stamped 0 (stacks that stamp only the header) are taken this far apart [ns]
 
 
-def path_msg(plan: Plan, header_stamp_ns: int, frame_id: str, z: float = 0.0) -> Any:
+def path_msg(plan: Plan, header_stamp_ns: int, frame_id: str, z: float = 0.0) -> Msg:
     """A Plan as nav_msgs/Path: header at the sweep's stamp, each pose at its own future time, at height z [m]."""
     poses = []
     for stamp, (x, y), yaw in zip(plan.stamps_ns.tolist(), plan.xy.tolist(), plan.yaws.tolist(), strict=True):
@@ -59,7 +59,7 @@ def without_orientation(quaternions: FloatArray) -> bool:
     return bool(np.all(quaternions[:, :3] == 0.0))
 
 
-def plan_from_path(path: Any, time_offset_ns: int = 0) -> Plan:
+def plan_from_path(path: Msg, time_offset_ns: int = 0) -> Plan:
     """A nav_msgs/Path (rclpy or rosbags object) as a Plan, pose stamps shifted by -time_offset_ns.
 
     Poses stamped 0 (stacks that stamp only the header) are taken as 0.1 s apart after the header.

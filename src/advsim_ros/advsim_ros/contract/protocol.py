@@ -10,22 +10,25 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import header_msg, message, stamp_ns, time_msg
+from advsim_ros.contract.codec import Msg, header_msg, message, stamp_ns, time_msg
 from advsim_ros.contract.enums import Outcome, Phase, Status
 from advsim_ros.contract.spatial import pose_matrix, pose_msg
 from advsim_ros.contract.tracks import TrackArrayRecord, TrackRecord, track_array_from_msg, track_from_msg, track_msg
 from advsim_ros.core.types import FloatArray, Perturbation
 
+ScoreValue: TypeAlias = str | int | float | None  # a ScoreRecord field as JSON holds it (as_dict, from_dict)
+
 # ----------------------------------------------------------------------------- Perturbation
 
 
-def perturbation_msg(perturbation: Perturbation, run_id: int) -> Any:
+def perturbation_msg(perturbation: Perturbation, run_id: int) -> Msg:
     return message(
         names.PERTURBATION,
         run_id=int(run_id),
@@ -37,7 +40,7 @@ def perturbation_msg(perturbation: Perturbation, run_id: int) -> Any:
     )
 
 
-def perturbation_from_msg(perturbation: Any) -> Perturbation:
+def perturbation_from_msg(perturbation: Msg) -> Perturbation:
     return Perturbation(
         query_id=int(perturbation.query_id),
         scenario_id=str(perturbation.scenario_id),
@@ -62,7 +65,7 @@ class SelectionRecord:
     feasible_candidates: tuple[int, ...]  # survivors of pruning, per selected actor
 
 
-def selection_msg(selection: SelectionRecord, stamp: int, frame_id: str, run_id: int) -> Any:
+def selection_msg(selection: SelectionRecord, stamp: int, frame_id: str, run_id: int) -> Msg:
     return message(
         names.ACTOR_SELECTION,
         header=header_msg(stamp, frame_id),
@@ -76,7 +79,7 @@ def selection_msg(selection: SelectionRecord, stamp: int, frame_id: str, run_id:
     )
 
 
-def selection_from_msg(selection: Any) -> SelectionRecord:
+def selection_from_msg(selection: Msg) -> SelectionRecord:
     return SelectionRecord(
         scenario_id=str(selection.scenario_id),
         actor_ids=tuple(str(a) for a in selection.actor_ids),
@@ -102,7 +105,7 @@ class FrameRequestRecord:
     reacted_actors: tuple[TrackRecord, ...] = ()  # reactive actors off their tracks: one state each (sim time)
 
 
-def frame_request_msg(request: FrameRequestRecord, world_frame: str, run_id: int) -> Any:
+def frame_request_msg(request: FrameRequestRecord, world_frame: str, run_id: int) -> Msg:
     return message(
         names.FRAME_REQUEST,
         header=header_msg(request.sim_stamp_ns, world_frame),
@@ -115,7 +118,7 @@ def frame_request_msg(request: FrameRequestRecord, world_frame: str, run_id: int
     )
 
 
-def frame_request_from_msg(request: Any) -> FrameRequestRecord:
+def frame_request_from_msg(request: Msg) -> FrameRequestRecord:
     pose = request.ego_pose
     return FrameRequestRecord(
         query_id=int(request.query_id),
@@ -144,7 +147,7 @@ class EpisodeRecord:
     outcome: Outcome = Outcome.COMPLETE
     input_digest: str = ""
     plan_digest: str = ""
-    decision_plan: Any = None  # nav_msgs/Path of the decision frame (sim time), None when it never came
+    decision_plan: Msg | None = None  # nav_msgs/Path of the decision frame (sim time), None when it never came
     detections: TrackArrayRecord | None = None
     predictions: TrackArrayRecord | None = None
     executed: TrackRecord | None = None  # closed loop: what the ego drove from the decision on (sim time)
@@ -152,14 +155,14 @@ class EpisodeRecord:
     outcome_detail: str = ""  # what went wrong, when the outcome is not COMPLETE
 
 
-def _no_track() -> Any:
+def _no_track() -> Msg:
     """An empty ActorTrack (the Episode's executed field in open loop)."""
     return message(
         names.ACTOR_TRACK, actor_id="", actor_class="", length=0.0, width=0.0, height=0.0, confidence=0.0, states=[]
     )
 
 
-def episode_msg(episode: EpisodeRecord, run_id: int, detections: Any = None, predictions: Any = None) -> Any:
+def episode_msg(episode: EpisodeRecord, run_id: int, detections: Msg = None, predictions: Msg = None) -> Msg:
     """Episode message; ``detections``/``predictions`` are the ActorTrackArray messages as the stack sent them."""
     empty_tracks = message(names.ACTOR_TRACK_ARRAY, header=header_msg(0, ""), run_id=0, query_id=0, tracks=[])
     return message(
@@ -191,7 +194,7 @@ def episode_msg(episode: EpisodeRecord, run_id: int, detections: Any = None, pre
     )
 
 
-def episode_from_msg(episode: Any) -> EpisodeRecord:
+def episode_from_msg(episode: Msg) -> EpisodeRecord:
     return EpisodeRecord(
         query_id=int(episode.query_id),
         phase=Phase(int(episode.phase)),
@@ -221,13 +224,13 @@ class SearchStatusRecord:
     finished: bool  # no further perturbation will come
 
 
-def search_status_msg(status: SearchStatusRecord, run_id: int) -> Any:
+def search_status_msg(status: SearchStatusRecord, run_id: int) -> Msg:
     return message(
         names.SEARCH_STATUS, run_id=int(run_id), queries_asked=status.queries_asked, finished=status.finished
     )
 
 
-def search_status_from_msg(status: Any) -> SearchStatusRecord:
+def search_status_from_msg(status: Msg) -> SearchStatusRecord:
     return SearchStatusRecord(queries_asked=int(status.queries_asked), finished=bool(status.finished))
 
 
@@ -270,16 +273,18 @@ class ScoreRecord:
     def ok(self) -> bool:
         return self.status == Status.OK
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, ScoreValue]:
         """For JSON: the status by name, NaN and infinities (no time to collision, no actor) as None."""
         values = dataclasses.asdict(self)
         values["status"] = self.status.label
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in values.items()}
 
     @staticmethod
-    def from_dict(values: dict[str, Any]) -> ScoreRecord:
+    def from_dict(values: Mapping[str, ScoreValue]) -> ScoreRecord:
         """The inverse of as_dict (journals, summaries)."""
         fields = {f.name: f for f in dataclasses.fields(ScoreRecord)}
+        # ScoreRecord's keyword arguments, each converted to its field's type just below (checked by the field's
+        # annotation at run time, which no static type can follow)
         converted: dict[str, Any] = {}
         for key, value in values.items():
             if key not in fields:
@@ -296,13 +301,13 @@ class ScoreRecord:
 SCORE_FIELDS = tuple(f.name for f in dataclasses.fields(ScoreRecord))
 
 
-def score_msg(score: ScoreRecord, run_id: int) -> Any:
+def score_msg(score: ScoreRecord, run_id: int) -> Msg:
     values = {name: getattr(score, name) for name in SCORE_FIELDS}
     values["status"] = int(score.status)
     return message(names.QUERY_SCORE, run_id=int(run_id), **values)
 
 
-def score_from_msg(score: Any) -> ScoreRecord:
+def score_from_msg(score: Msg) -> ScoreRecord:
     values = {name: getattr(score, name) for name in SCORE_FIELDS}
     values["status"] = Status(int(score.status))
     values["message"] = str(values["message"])

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, header_msg, message, stamp_ns
+from advsim_ros.contract.codec import ContractError, Msg, header_msg, message, stamp_ns
 from advsim_ros.contract.pointcloud import cloud_to_points, points_are_bigendian, points_to_cloud_fields
 from advsim_ros.contract.spatial import pose_matrix, pose_msg, transform_msg
 from advsim_ros.core.types import (
@@ -26,7 +25,7 @@ from advsim_ros.core.types import (
 _FREE, _OCCUPIED = 0, 100
 
 
-def cloud_msg(sweep: Sweep) -> Any:
+def cloud_msg(sweep: Sweep) -> Msg:
     """sensor_msgs/PointCloud2 of a sweep (sensor frame), the points' field layout kept byte for byte."""
     points = np.ascontiguousarray(sweep.points)
     fields, point_step = points_to_cloud_fields(points)
@@ -47,7 +46,7 @@ def cloud_msg(sweep: Sweep) -> Any:
     )
 
 
-def sweep_from_cloud(cloud: Any, sensor_pose: FloatArray, stamp_ns_override: int | None = None) -> Sweep:
+def sweep_from_cloud(cloud: Msg, sensor_pose: FloatArray, stamp_ns_override: int | None = None) -> Sweep:
     """A Sweep from a PointCloud2 (any field layout) and the sensor pose at its stamp."""
     stamp = stamp_ns(cloud.header.stamp) if stamp_ns_override is None else stamp_ns_override
     return Sweep(
@@ -55,7 +54,7 @@ def sweep_from_cloud(cloud: Any, sensor_pose: FloatArray, stamp_ns_override: int
     )
 
 
-def _polyline(points: FloatArray) -> Any:
+def _polyline(points: FloatArray) -> Msg:
     return message(
         names.POLYLINE,
         x=np.ascontiguousarray(points[:, 0], dtype=np.float64),
@@ -63,7 +62,7 @@ def _polyline(points: FloatArray) -> Any:
     )
 
 
-def road_map_msg(road_map: RoadMap, stamp: int, world_frame: str) -> Any:
+def road_map_msg(road_map: RoadMap, stamp: int, world_frame: str) -> Msg:
     return message(
         names.ROAD_MAP,
         header=header_msg(stamp, world_frame),
@@ -72,10 +71,10 @@ def road_map_msg(road_map: RoadMap, stamp: int, world_frame: str) -> Any:
     )
 
 
-def road_map_from_msg(road_map: Any) -> RoadMap | None:
+def road_map_from_msg(road_map: Msg) -> RoadMap | None:
     """An advsim_msgs/RoadMap as a core RoadMap; None when it carries nothing."""
 
-    def outline(polyline: Any) -> FloatArray:
+    def outline(polyline: Msg) -> FloatArray:
         return np.stack([np.asarray(polyline.x, dtype=np.float64), np.asarray(polyline.y, dtype=np.float64)], axis=-1)
 
     areas = tuple(outline(area) for area in road_map.drivable_areas)
@@ -85,7 +84,7 @@ def road_map_from_msg(road_map: Any) -> RoadMap | None:
     return RoadMap(drivable_areas=areas, lane_centerlines=lanes)
 
 
-def drivable_grid_msg(area: DrivableArea, stamp: int, world_frame: str) -> Any:
+def drivable_grid_msg(area: DrivableArea, stamp: int, world_frame: str) -> Msg:
     """The drivable raster as nav_msgs/OccupancyGrid (free = drivable), viewable in RViz and Foxglove."""
     resolution = np.float32(area.resolution)
     if float(resolution) != area.resolution:
@@ -105,7 +104,7 @@ def drivable_grid_msg(area: DrivableArea, stamp: int, world_frame: str) -> Any:
     return message(names.OCCUPANCY_GRID, header=header_msg(stamp, world_frame), info=info, data=data)
 
 
-def drivable_area_from_grid(grid: Any) -> DrivableArea:
+def drivable_area_from_grid(grid: Msg) -> DrivableArea:
     """An OccupancyGrid written by drivable_grid_msg (axis-aligned) as a DrivableArea."""
     info = grid.info
     origin = pose_matrix(info.origin.position, info.origin.orientation, "drivable grid origin")
@@ -132,7 +131,7 @@ class ScenarioInfoRecord:
     sensor: SensorModel | None
 
 
-def scenario_info_msg(scenario: Scenario, world_frame: str, ego_frame: str, sensor_frame: str, source: str) -> Any:
+def scenario_info_msg(scenario: Scenario, world_frame: str, ego_frame: str, sensor_frame: str, source: str) -> Msg:
     sensor = scenario.sensor
     return message(
         names.SCENARIO_INFO,
@@ -154,7 +153,7 @@ def scenario_info_msg(scenario: Scenario, world_frame: str, ego_frame: str, sens
     )
 
 
-def scenario_info_from_msg(info: Any, what: str) -> ScenarioInfoRecord:
+def scenario_info_from_msg(info: Msg, what: str) -> ScenarioInfoRecord:
     sensor = None
     if info.has_sensor_model:
         sensor = SensorModel(

@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, header_msg, message
+from advsim_ros.contract.codec import ContractError, Msg, header_msg, message
 from advsim_ros.core.types import EgoTrajectory, FloatArray
 
 
-def pose_matrix(translation: Any, rotation: Any, what: str) -> FloatArray:
+def pose_matrix(translation: Msg, rotation: Msg, what: str) -> FloatArray:
     """A 4x4 transform from a ROS translation (or position) and quaternion; ContractError for NaN, bad quaternions."""
     values = np.array(
         [translation.x, translation.y, translation.z, rotation.x, rotation.y, rotation.z, rotation.w], dtype=np.float64
@@ -28,24 +26,24 @@ def pose_matrix(translation: Any, rotation: Any, what: str) -> FloatArray:
     return matrix
 
 
-def quaternion_msg(rotation: FloatArray) -> Any:
+def quaternion_msg(rotation: FloatArray) -> Msg:
     x, y, z, w = Rotation.from_matrix(rotation).as_quat()
     return message(names.QUATERNION, x=float(x), y=float(y), z=float(z), w=float(w))
 
 
-def pose_msg(matrix: FloatArray) -> Any:
+def pose_msg(matrix: FloatArray) -> Msg:
     """geometry_msgs/Pose of a 4x4 transform."""
     position = message(names.POINT, x=float(matrix[0, 3]), y=float(matrix[1, 3]), z=float(matrix[2, 3]))
     return message(names.POSE, position=position, orientation=quaternion_msg(matrix[:3, :3]))
 
 
-def transform_msg(matrix: FloatArray) -> Any:
+def transform_msg(matrix: FloatArray) -> Msg:
     """geometry_msgs/Transform of a 4x4 transform."""
     translation = message(names.VECTOR3, x=float(matrix[0, 3]), y=float(matrix[1, 3]), z=float(matrix[2, 3]))
     return message(names.TRANSFORM, translation=translation, rotation=quaternion_msg(matrix[:3, :3]))
 
 
-def tf_message(stamp_ns: int, parent: str, child: str, matrix: FloatArray) -> Any:
+def tf_message(stamp_ns: int, parent: str, child: str, matrix: FloatArray) -> Msg:
     """tf2_msgs/TFMessage with the one transform parent -> child."""
     stamped = message(
         names.TRANSFORM_STAMPED,
@@ -56,7 +54,7 @@ def tf_message(stamp_ns: int, parent: str, child: str, matrix: FloatArray) -> An
     return message(names.TF_MESSAGE, transforms=[stamped])
 
 
-def transforms_of(tf: Any) -> dict[tuple[str, str], FloatArray]:
+def transforms_of(tf: Msg) -> dict[tuple[str, str], FloatArray]:
     """(parent, child) -> 4x4 transform of every valid transform in a TFMessage (broken ones are skipped)."""
     transforms: dict[tuple[str, str], FloatArray] = {}
     for stamped in tf.transforms:
@@ -78,7 +76,7 @@ def _gradient(values: FloatArray, times_s: FloatArray) -> FloatArray:
 
 def odometry_msg(
     stamp_ns: int, world_frame: str, ego_frame: str, pose: FloatArray, velocity: FloatArray, yaw_rate: float
-) -> Any:
+) -> Msg:
     """nav_msgs/Odometry of one ego pose (4, 4), its velocity (3,) in the ego frame [m/s] and yaw rate [rad/s]."""
     linear = message(names.VECTOR3, x=float(velocity[0]), y=float(velocity[1]), z=float(velocity[2]))
     angular = message(names.VECTOR3, x=0.0, y=0.0, z=float(yaw_rate))
@@ -95,7 +93,7 @@ def odometry_msg(
     )
 
 
-def odometry_msgs(ego: EgoTrajectory, world_frame: str, ego_frame: str) -> list[Any]:
+def odometry_msgs(ego: EgoTrajectory, world_frame: str, ego_frame: str) -> list[Msg]:
     """nav_msgs/Odometry of every ego pose; the twist (in the ego frame) by finite differences."""
     poses = ego.poses
     times_s = (ego.stamps_ns - ego.stamps_ns[0]) * 1e-9
@@ -108,7 +106,7 @@ def odometry_msgs(ego: EgoTrajectory, world_frame: str, ego_frame: str) -> list[
     ]
 
 
-def odometry_pose(odometry: Any, what: str) -> FloatArray:
+def odometry_pose(odometry: Msg, what: str) -> FloatArray:
     """The 4x4 pose an Odometry message gives (child frame in header frame)."""
     pose = odometry.pose.pose
     return pose_matrix(pose.position, pose.orientation, what)

@@ -12,12 +12,11 @@ import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract import codec, names
-from advsim_ros.contract.codec import NS_PER_S, ContractError, header_msg, message, stamp_ns
+from advsim_ros.contract.codec import NS_PER_S, ContractError, Msg, header_msg, message, stamp_ns
 from advsim_ros.core.closed_loop import ExecutedTrajectory
 from advsim_ros.core.feasibility import PerturbedTrajectory
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray
@@ -131,7 +130,7 @@ class TrackRecord:
         )  # fmt: skip
 
 
-def track_msg(record: TrackRecord) -> Any:
+def track_msg(record: TrackRecord) -> Msg:
     # A prediction carries tracks x 50 states per sweep: the classes are looked up once and the
     # states built positionally (fields in the .msg order), which halves the cost per state.
     types = codec.typestore().types
@@ -165,7 +164,7 @@ def track_msg(record: TrackRecord) -> Any:
 
 def track_array_msg(
     records: Sequence[TrackRecord], stamp: int, frame_id: str, *, query_id: int = 0, run_id: int = 0
-) -> Any:
+) -> Msg:
     return message(
         names.ACTOR_TRACK_ARRAY,
         header=header_msg(stamp, frame_id),
@@ -228,7 +227,7 @@ def track_array_cdr(
     return codec.CDR_LE_HEADER + bytes(payload)
 
 
-def track_from_msg(track: Any) -> TrackRecord:
+def track_from_msg(track: Msg) -> TrackRecord:
     """The TrackRecord of one ActorTrack; ContractError for no states, an unknown class or non-finite values."""
     actor_id = str(track.actor_id)
     if not track.states:
@@ -273,7 +272,7 @@ class TrackArrayRecord:
         return tuple(track.to_actor_track() for track in self.tracks)
 
 
-def track_array_from_msg(array: Any) -> TrackArrayRecord:
+def track_array_from_msg(array: Msg) -> TrackArrayRecord:
     try:
         tracks = tuple(track_from_msg(track) for track in array.tracks)
     except ContractError as error:
