@@ -203,6 +203,7 @@ def load_av2_map(log_dir: Path) -> RoadMap:
         raise Av2Error(f"{log_dir / 'map'}: no log_map_archive_*.json vector map")
     path = archives[0]
     try:
+        # The dataset's JSON as parsed (untyped like any JSON document): every value is checked where it is read
         data: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as error:
         raise Av2Error(f"{path}: not a readable JSON map ({error})") from None

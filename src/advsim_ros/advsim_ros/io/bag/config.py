@@ -7,7 +7,6 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from advsim_ros.contract import topics
 from advsim_ros.core.params import config_from_mapping, load_node_params
@@ -105,12 +104,12 @@ def bag_params_config(path: Path | None) -> BagConfig | None:
         raise BagError(f"--bag-params {error}") from None
 
 
-def bag_layout_json(config: BagConfig | None) -> dict[str, Any] | None:
+def bag_layout_json(config: BagConfig | None) -> dict[str, object] | None:
     """A layout as JSON (summary.json, campaign jobs, suite indexes); None stays None."""
     return None if config is None else dataclasses.asdict(config)
 
 
-def bag_layout_of(values: Mapping[str, Any] | None, context: str) -> BagConfig | None:
+def bag_layout_of(values: Mapping[str, object] | None, context: str) -> BagConfig | None:
     """The layout ``bag_layout_json`` wrote; None for None (no layout recorded: the contract's)."""
     if values is None:
         return None

@@ -10,18 +10,18 @@ from __future__ import annotations
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 from rosbags.interfaces import Connection
 
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import ContractError, header_stamp_ns, stamp_ns
+from advsim_ros.contract.codec import ContractError, Msg, header_stamp_ns, stamp_ns
 from advsim_ros.contract.pointcloud import DroppedPoints
 from advsim_ros.contract.scenario import drivable_area_from_grid, road_map_from_msg, scenario_info_from_msg
 from advsim_ros.contract.spatial import pose_matrix
 from advsim_ros.contract.tracks import TrackRecord, track_from_msg
-from advsim_ros.core.types import ActorTrack, EgoTrajectory, FloatArray, Scenario, ScenarioError, Sweep
+from advsim_ros.core.types import ActorTrack, EgoGeometry, EgoTrajectory, FloatArray, Scenario, ScenarioError, Sweep
 from advsim_ros.io.bag.config import LAYOUT_HINT, BagConfig, BagError
 from advsim_ros.io.bag.poses import interpolate_poses, static_transform
 from advsim_ros.io.bag.storage import BagReader, cloud_points, log
@@ -29,20 +29,27 @@ from advsim_ros.io.bag.storage import BagReader, cloud_points, log
 _NO_POINTS = np.zeros(0, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
 
 
+class _Geometry(TypedDict, total=False):
+    """Scenario's geometry arguments a bag gives (those it lacks keep Scenario's defaults)."""
+
+    ego_geometry: EgoGeometry
+    sensor_frame: str
+
+
 @dataclass
 class _Collected:
-    info: Any = None
-    road_map: Any = None
-    drivable: Any = None
+    info: Msg | None = None  # ScenarioInfo
+    road_map: Msg | None = None  # RoadMap
+    drivable: Msg | None = None  # OccupancyGrid
     odom: list[tuple[int, FloatArray]] = field(default_factory=list)  # (stamp, T_world_ego)
     tf: list[tuple[int, FloatArray]] = field(default_factory=list)  # (stamp, T_world_ego)
     static: dict[tuple[str, str], FloatArray] = field(default_factory=dict)  # (parent, child) -> T_parent_child
-    tracks: list[tuple[int, Any]] = field(default_factory=list)
+    tracks: list[tuple[int, Msg]] = field(default_factory=list)  # (stamp, ActorTrackArray)
     clouds: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
     dropped: DroppedPoints = field(default_factory=DroppedPoints)  # non-finite points left out of the clouds
 
 
-def _pose(translation: Any, rotation: Any, what: str) -> FloatArray:
+def _pose(translation: Msg, rotation: Msg, what: str) -> FloatArray:
     try:
         return pose_matrix(translation, rotation, what)
     except ContractError as error:
@@ -207,7 +214,7 @@ def _assemble(
             pose = ego_poses[frame_index[stamp]] @ ego_T_sensor
             sweeps.append(Sweep(stamp_ns=stamp, frame_id=frame_id, points=points, sensor_pose=pose))
     try:
-        geometry: dict[str, Any] = {}
+        geometry: _Geometry = {}
         if info is not None:
             geometry = {"ego_geometry": info.ego_geometry}
         if sensor_frame:
@@ -230,7 +237,7 @@ def _assemble(
         raise BagError(f"bag {path}: {error}") from None
 
 
-def _tracks_from_arrays(path: Path, arrays: list[tuple[int, Any]], config: BagConfig) -> tuple[ActorTrack, ...]:
+def _tracks_from_arrays(path: Path, arrays: list[tuple[int, Msg]], config: BagConfig) -> tuple[ActorTrack, ...]:
     """Each actor's track from the per-frame ActorTrackArrays (one state per actor and frame)."""
     states: dict[str, list[TrackRecord]] = defaultdict(list)
     shapes: dict[str, tuple[str, tuple[float, ...]]] = {}

@@ -12,28 +12,38 @@ import io
 import logging
 import os
 import struct
+import sys
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, BinaryIO, Protocol
 
 import apsw
 import numpy as np
 import yaml
-from lz4.frame import LZ4FrameDecompressor
-from rosbags.interfaces import Connection, MessageDefinitionFormat
+from lz4.frame import LZ4FrameDecompressor  # type: ignore[import-untyped]  # lz4 ships no type hints
+from rosbags.interfaces import Connection, MessageDefinitionFormat, Nodetype
 from rosbags.rosbag2 import Reader, storage_mcap
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import Nodetype, TypesysError
+from rosbags.typesys.base import TypesysError
 from rosbags.typesys.store import Typestore
 
 from advsim_ros.contract import codec, names, topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.pointcloud import DroppedPoints, cloud_to_points, cloud_view, finite_mask
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag.config import LAYOUT_HINT, BagConfig, BagError
+
+if sys.version_info >= (3, 14):  # the zstd module rosbags' MCAP reader uses (rosbags.rosbag2.storage_mcap)
+    from compression import zstd
+else:
+    from backports import zstd
+
+if TYPE_CHECKING:
+    from rosbags.interfaces.typing import BaseDesc, Fielddefs, FieldDesc, NameDesc, Typesdict
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +51,7 @@ log = logging.getLogger(__name__)
 # truncated, corrupt or adversarial storage (a fuzz test found each). Caught around rosbags' own calls only,
 # at this one boundary, and raised as BagError naming the bag and what is wrong.
 _CORRUPT: tuple[type[BaseException], ...] = (
-    ReaderError, SerdeError, TypesysError, apsw.Error, storage_mcap.zstd.ZstdError, OSError, EOFError, MemoryError,
+    ReaderError, SerdeError, TypesysError, apsw.Error, zstd.ZstdError, OSError, EOFError, MemoryError,
     ArithmeticError, LookupError, ValueError, TypeError, AttributeError, AssertionError, RuntimeError, struct.error,
 )  # fmt: skip
 
@@ -60,17 +70,17 @@ def _corrupt(what: str, error: BaseException) -> BagError:
 _ADDED_LATER = {("advsim_msgs/msg/ScenarioInfo", "ego_forward_offset"), ("advsim_msgs/msg/ActorTrackArray", "run_id")}
 
 
-def _type_names(kind: Any) -> list[str]:
+def _type_names(kind: FieldDesc | BaseDesc | NameDesc) -> list[str]:
     """The message types a rosbags field type refers to: (NAME, type), or arrays and sequences of those."""
-    node, detail = kind
-    if node == Nodetype.NAME:
-        return [detail]
-    if node in (Nodetype.ARRAY, Nodetype.SEQUENCE):
-        return _type_names(detail[0])
+    match kind:
+        case (Nodetype.NAME, name):
+            return [name]
+        case (Nodetype.ARRAY | Nodetype.SEQUENCE, (element, _)):
+            return _type_names(element)
     return []
 
 
-def _difference(stored: list[tuple[str, Any]], expected: list[tuple[str, Any]]) -> str:
+def _difference(stored: Fielddefs, expected: Fielddefs) -> str:
     names, kinds = [f for f, _ in stored], dict(expected)
     unknown = [f for f in names if f not in kinds]
     missing = [f for f, _ in expected if f not in names]
@@ -83,7 +93,19 @@ def _count(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
-def _bounded(decompressor: Callable[[], Any]) -> Callable[[bytes, int], bytes]:
+class _Decompressor(Protocol):
+    """A streaming decompressor (zstd's ZstdDecompressor, lz4's LZ4FrameDecompressor): one frame."""
+
+    @property
+    def eof(self) -> bool: ...
+
+    @property
+    def unused_data(self) -> bytes: ...
+
+    def decompress(self, data: bytes, max_length: int = -1) -> bytes: ...
+
+
+def _bounded(decompressor: Callable[[], _Decompressor]) -> Callable[[bytes, int], bytes]:
     """A chunk decompressor that never produces more than the chunk's declared size (frame after frame)."""
 
     def decompress(data: bytes, size: int) -> bytes:
@@ -103,19 +125,19 @@ def _bounded(decompressor: Callable[[], Any]) -> Callable[[bytes, int], bytes]:
     return decompress
 
 
-def _read_within(stream: BinaryIO, size: int) -> bytes:
+def _read_within(bio: BinaryIO, size: int) -> bytes:
     """rosbags' read_exact, refusing a size the file (or chunk) does not hold before read() allocates it."""
-    position = stream.tell()
-    if isinstance(stream, io.BytesIO):
-        remaining = stream.getbuffer().nbytes - position
+    position = bio.tell()
+    if isinstance(bio, io.BytesIO):
+        remaining = bio.getbuffer().nbytes - position
     else:
         try:
-            remaining = os.fstat(stream.fileno()).st_size - position
+            remaining = os.fstat(bio.fileno()).st_size - position
         except (OSError, ValueError):  # not a plain file: rosbags' own read
-            return _read_exact(stream, size)
+            return _read_exact(bio, size)
     if size > remaining:
         raise ReaderError(f"a record at offset {position} declares {size} bytes; {remaining} follow")
-    return _read_exact(stream, size)
+    return _read_exact(bio, size)
 
 
 # rosbags (pinned) reads MCAP records and chunks whole: sizes are checked against what is there first, and
@@ -123,7 +145,7 @@ def _read_within(stream: BinaryIO, size: int) -> bytes:
 _read_exact = getattr(storage_mcap.read_exact, "__wrapped__", storage_mcap.read_exact)  # once, if imported again
 _read_within.__wrapped__ = _read_exact  # type: ignore[attr-defined]
 storage_mcap.read_exact = _read_within
-storage_mcap.DECOMPRESSORS.update(zstd=_bounded(storage_mcap.zstd.ZstdDecompressor), lz4=_bounded(LZ4FrameDecompressor))
+storage_mcap.DECOMPRESSORS.update(zstd=_bounded(zstd.ZstdDecompressor), lz4=_bounded(LZ4FrameDecompressor))
 
 
 STORAGES = ("sqlite3", "mcap")  # the rosbag2 storage plugins rosbags reads
@@ -236,12 +258,12 @@ class BagReader:
                 )
             pending += [reference for _, kind in expected for reference in _type_names(kind)]
 
-    def messages(self, connections: list[Connection]) -> Iterator[tuple[Connection, int, Any]]:
+    def messages(self, connections: list[Connection]) -> Iterator[tuple[Connection, int, Msg]]:
         """Decoded messages of these connections in time order; BagError on truncated or corrupt storage."""
         for connection, stamp, raw in self.raw_messages(connections):
             yield connection, stamp, self.decode(connection, stamp, raw)
 
-    def decode(self, connection: Connection, stamp: int, raw: bytes) -> Any:
+    def decode(self, connection: Connection, stamp: int, raw: bytes) -> Msg:
         """One message's CDR bytes decoded; BagError naming the topic and stamp when they are corrupt."""
         try:
             return self.store.deserialize_cdr(raw, connection.msgtype)
@@ -299,7 +321,7 @@ def _typestore(definitions: tuple[tuple[str, str, str], ...], msgtypes: frozense
         except TypesysError as error:
             raise TypesysError(f"topic {topic} type {msgtype}: {error}") from None
     defaults = codec.typestore().fielddefs
-    added: dict[str, Any] = {}
+    added: Typesdict = {}
     seen: set[str] = set()
     pending = list(msgtypes)
     while pending:
@@ -358,7 +380,7 @@ def summarize_bag(path: Path) -> BagSummary:
         )
 
 
-def cloud_points(bag: BagReader, topic: str, cloud: Any, stamp: int, dropped: DroppedPoints) -> np.ndarray:
+def cloud_points(bag: BagReader, topic: str, cloud: Msg, stamp: int, dropped: DroppedPoints) -> np.ndarray:
     """The points of a PointCloud2 read from a bag, those with non-finite x, y or z dropped (tallied in
     ``dropped``: organised clouds mark missing returns with NaN); BagError naming the topic and stamp when
     the cloud is unreadable."""

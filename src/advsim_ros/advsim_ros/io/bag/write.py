@@ -12,7 +12,6 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from rosbags.interfaces import Connection, Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
@@ -20,6 +19,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
 from advsim_ros.contract import codec, names, topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.qos import Durability, QosSpec, Reliability
 from advsim_ros.contract.scenario import cloud_msg, drivable_grid_msg, road_map_msg, scenario_info_msg
 from advsim_ros.contract.spatial import odometry_msgs, tf_message
@@ -133,7 +133,7 @@ def _write_bag(
     return path
 
 
-def _frame_track_arrays(scenario: Scenario, config: BagConfig) -> list[Any]:
+def _frame_track_arrays(scenario: Scenario, config: BagConfig) -> list[Msg]:
     """One ActorTrackArray per frame holding, for each actor seen then, its state at that frame."""
     per_frame: dict[int, list[TrackRecord]] = defaultdict(list)
     for actor in scenario.actors:
@@ -168,7 +168,7 @@ def _write_messages(writer: Writer, scenario: Scenario, config: BagConfig, sourc
     tracks = connect(config.tracks_topic, names.ACTOR_TRACK_ARRAY, topics.ACTOR_TRACKS.name)
     lidar = connect(config.lidar_topic, names.POINTCLOUD2, topics.LIDAR.name)  # present even when empty
 
-    def write(connection: Connection, stamp: int, value: Any) -> None:
+    def write(connection: Connection, stamp: int, value: Msg) -> None:
         writer.write(connection, stamp, codec.encode(value))
 
     first = int(scenario.frame_stamps_ns[0])
