@@ -326,7 +326,7 @@ def points_are_bigendian(points: np.ndarray) -> bool:
 
 def dtype_is_bigendian(dtype: np.dtype) -> bool:
     """The is_bigendian flag of a structured dtype's bytes; raises PointCloudError when fields mix byte orders."""
-    fields: dict[str, tuple[np.dtype, int]] = dict(dtype.fields or {})  # type: ignore[arg-type]
+    fields: dict[str, tuple[np.dtype, int]] = dict(dtype.fields or {})  # type: ignore[arg-type]  # numpy types a field as (dtype, offset[, title])
     native = "<" if np.little_endian else ">"
     orders = {
         native if fields[name][0].base.byteorder == "=" else fields[name][0].base.byteorder

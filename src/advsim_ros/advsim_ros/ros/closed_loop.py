@@ -14,11 +14,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract import codec, names
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.closed_loop import (
     ControllerConfig,
@@ -35,6 +35,7 @@ from advsim_ros.core.types import (
     EgoGeometry,
     EgoTrajectory,
     FloatArray,
+    IntArray,
     Plan,
     Scenario,
     ScenarioError,
@@ -88,7 +89,7 @@ class ClosedLoopSetup:
 def closed_loop_setup(
     scenario: Scenario,
     frames: range,
-    odometry: Sequence[Any],
+    odometry: Sequence[Msg],  # nav_msgs/Odometry
     window: WindowConfig,
     controller: ControllerConfig,
     idm: IdmConfig | None,
@@ -172,6 +173,6 @@ def close_loop(
     return executed, counts, traffic.drives() if traffic is not None else ()
 
 
-def loop_frames(stamps_ns: Sequence[int], poses: FloatArray, frames: range) -> list[LoopFrame]:
+def loop_frames(stamps_ns: Sequence[int] | IntArray, poses: FloatArray, frames: range) -> list[LoopFrame]:
     """LoopFrames of these log frames."""
     return [LoopFrame(i, int(stamps_ns[i]), np.asarray(poses[i])) for i in frames]

@@ -11,16 +11,19 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import rclpy
 from rclpy.callback_groups import CallbackGroup
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.rcutils_logger import RcutilsLogger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
+from rclpy.utilities import try_shutdown
 
 from advsim_ros.contract import codec
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.qos import QosSpec
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.types import ScenarioError
@@ -33,8 +36,10 @@ RUN_ID_PARAMETER = "run_id"  # every node of one attack gets the same value (adv
 # would otherwise be overwritten by another writer's message (a stray graph) before it is read.
 SUBSCRIPTION_DEPTH = 100
 
+Publish = Callable[[Msg | bytes], None]  # publishes a typestore message object or ready CDR bytes
 
-class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
+
+class GraphNode(Node):
     """A node that speaks the contract as CDR, knows the attack's window and ignores other runs."""
 
     def __init__(
@@ -44,14 +49,22 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         self.run_id = int(self.declare_parameter(RUN_ID_PARAMETER, 0).value)
         self.trace = Trace(name)
         self._foreign_runs: set[tuple[str, int]] = set()
-        self._publishers_by_topic: dict[str, Any] = {}
+        self._publishers_by_topic: dict[str, Publisher] = {}
 
-    def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Callable[[Any], None]:
+    # rclpy leaves these two unannotated: typed here, unchanged, for every node of the graph
+    def get_logger(self) -> RcutilsLogger:
+        logger: RcutilsLogger = Node.get_logger(self)
+        return logger
+
+    def destroy_node(self) -> None:
+        Node.destroy_node(self)
+
+    def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Publish:
         """A publish function taking a typestore message object or ready CDR bytes."""
         publisher = self.create_publisher(message_class(topic.msgtype), topic.name, profile(qos or topic.offered))
         self._publishers_by_topic[topic.name] = publisher
 
-        def publish(value: Any) -> None:
+        def publish(value: Msg | bytes) -> None:
             publisher.publish(value if isinstance(value, bytes) else codec.encode(value))
 
         return publish
@@ -61,7 +74,7 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
         count: int = self._publishers_by_topic[topic.name].get_subscription_count()
         return count
 
-    def latch(self, topic: TopicSpec, value: Any) -> Any:
+    def latch(self, topic: TopicSpec, value: Msg) -> Publisher:
         """Publish one message on a latched (transient-local) topic; the publisher is returned to keep it alive."""
         publisher = self.create_publisher(message_class(topic.msgtype), topic.name, profile(topic.offered))
         publisher.publish(codec.encode(value))
@@ -70,7 +83,7 @@ class GraphNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
     def subscribe(
         self,
         topic: TopicSpec,
-        callback: Callable[[Any], None],
+        callback: Callable[[Msg], None],  # the decoded message, or its CDR bytes with raw=True
         *,
         qos: QosSpec | None = None,
         raw: bool = False,
@@ -140,6 +153,6 @@ def run_nodes(factories: Sequence[Callable[[], Node]]) -> None:
     finally:
         for node in reversed(nodes):
             node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
     if exit_code:
         sys.exit(exit_code)

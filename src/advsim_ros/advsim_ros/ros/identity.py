@@ -23,6 +23,17 @@ import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from rclpy.topic_endpoint_info import TopicEndpointInfo
+
+
+class GraphView(Protocol):
+    """What this module reads of a node: the publishers on a topic (rclpy's Node has it)."""
+
+    def get_publishers_info_by_topic(self, topic_name: str) -> list[TopicEndpointInfo]: ...
+
 
 RUN_MARKER = "ADVSIM_RUN_MARKER"
 RUN_PIDS = "ADVSIM_RUN_PIDS"  # the file the launcher lists the pids of the processes it started in
@@ -99,11 +110,11 @@ class Membership:
             self._verdicts[key] = verdict
         return verdict
 
-    def foreign_publishers(self, node: object, topic_names: Iterable[str]) -> list[ForeignEndpoint]:
+    def foreign_publishers(self, node: GraphView, topic_names: Iterable[str]) -> list[ForeignEndpoint]:
         """Publishers on these topics (read from ``node``'s view of the ROS graph) that are not the attack's."""
         found = []
         for topic in dict.fromkeys(topic_names):
-            for info in node.get_publishers_info_by_topic(topic):  # type: ignore[attr-defined]
+            for info in node.get_publishers_info_by_topic(topic):
                 gid = list(info.endpoint_gid)
                 if not self.belongs(gid):
                     found.append(ForeignEndpoint(topic, str(info.node_name), endpoint_pid_bits(gid)))

@@ -14,19 +14,20 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.utilities import try_shutdown
 
 from advsim_ros.contract import topics
-from advsim_ros.contract.protocol import perturbation_msg, selection_from_msg
+from advsim_ros.contract.codec import Msg
+from advsim_ros.contract.protocol import SelectionRecord, perturbation_msg, selection_from_msg
 from advsim_ros.core.search.driver import DriverConfig
 from advsim_ros.core.search.lanes import evaluate_on_lanes
 from advsim_ros.core.types import Perturbation, ScenarioError
-from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode
+from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode, Publish
 
 READER_POLL = 0.02  # how often the first query re-checks its readers [s]
 READER_REPORT = 10.0  # how often a wait for readers says whom it waits for [s]
@@ -37,11 +38,11 @@ class Board:
 
     def __init__(self) -> None:
         self.condition = threading.Condition()
-        self.selection: Any = None
+        self.selection: SelectionRecord | None = None
         self.scores: dict[int, float] = {}  # query id -> L_adv (NaN: the query failed)
         self.stop = threading.Event()
 
-    def select(self, selection: Any) -> None:
+    def select(self, selection: SelectionRecord) -> None:
         with self.condition:
             self.selection = selection
             self.condition.notify_all()
@@ -69,10 +70,10 @@ class Lane:
     """Another evaluation lane's graph, joined from this process: its own context on its own ROS domain."""
 
     def __init__(
-        self, index: int, domain_id: int, run_id: int, on_score: Callable[[Any], None], notify: Callable[[], None]
+        self, index: int, domain_id: int, run_id: int, on_score: Callable[[Msg], None], notify: Callable[[], None]
     ) -> None:
         self.index, self.domain_id, self._notify = index, domain_id, notify
-        self.selection: Any = None
+        self.selection: SelectionRecord | None = None
         self.context = Context()
         rclpy.init(args=[], context=self.context, domain_id=domain_id)
         self.node = GraphNode(f"search_lane{index}", [Parameter(RUN_ID_PARAMETER, value=run_id)], context=self.context)
@@ -84,27 +85,27 @@ class Lane:
         self._spinner = threading.Thread(target=self.executor.spin, name=f"lane{index}", daemon=True)
         self._spinner.start()
 
-    def _on_selection(self, message: Any) -> None:
+    def _on_selection(self, message: Msg) -> None:
         self.selection = selection_from_msg(message)
         self._notify()  # the search waits for every lane's selection
 
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        try_shutdown(context=self.context)
         self._spinner.join(timeout=5.0)
 
 
 class Lanes:
     """This graph's lane and the further ones: the waits before the first query, the hand-out of each batch."""
 
-    def __init__(self, node: GraphNode, publish_perturbation: Callable[[Any], None], config: DriverConfig) -> None:
+    def __init__(self, node: GraphNode, publish_perturbation: Publish, config: DriverConfig) -> None:
         self.node, self.config = node, config
         self.publishers = [publish_perturbation]  # lane 0: this graph
         self.board = Board()
         self.further: list[Lane] = []
 
-    def join(self, on_score: Callable[[Any], None]) -> None:
+    def join(self, on_score: Callable[[Msg], None]) -> None:
         """Join the further lanes' graphs (``lane_domains``); their scores go to ``on_score`` as this graph's do."""
         self.further = [
             Lane(index, domain_id, self.node.run_id, on_score, self.board.notify)
@@ -120,12 +121,13 @@ class Lanes:
         for lane in self.further:
             lane.close()
 
-    def ready(self) -> Any:
+    def ready(self) -> SelectionRecord | None:
         """This graph's actor selection once every lane made the same and has its readers; None when stopped."""
         board = self.board
         if not board.wait(lambda: board.selection is not None, None):
             return None
         selection = board.selection
+        assert selection is not None  # the wait above saw it
         if not self._same_selection(selection) or not self._readers_matched():
             return None
         return selection
@@ -145,7 +147,7 @@ class Lanes:
     def _timed_out(self, query_id: int) -> None:
         self.node.get_logger().error(f"query {query_id}: no score within {self.config.score_timeout} s")
 
-    def _same_selection(self, selection: Any) -> bool:
+    def _same_selection(self, selection: SelectionRecord) -> bool:
         """Wait until every further lane's perturber selected the same actors as this graph's."""
         if self.further:
             self.node.get_logger().info(
@@ -154,14 +156,16 @@ class Lanes:
         if not self.board.wait(lambda: all(lane.selection is not None for lane in self.further), None):
             return False
 
-        def layout(record: Any) -> tuple[Any, ...]:
+        def layout(record: SelectionRecord) -> tuple[object, ...]:
             return record.scenario_id, record.actor_ids, record.dimension, record.feasible_candidates
 
         for lane in self.further:
-            if layout(lane.selection) != layout(selection):
+            theirs = lane.selection
+            assert theirs is not None  # the wait above saw every lane's
+            if layout(theirs) != layout(selection):
                 raise ScenarioError(
                     f"evaluation lane {lane.index} (ROS domain {lane.domain_id}) selected actors "
-                    f"{list(lane.selection.actor_ids)}, this graph {list(selection.actor_ids)}: lanes must be identical"
+                    f"{list(theirs.actor_ids)}, this graph {list(selection.actor_ids)}: lanes must be identical"
                 )
         return True
 

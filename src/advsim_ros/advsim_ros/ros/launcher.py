@@ -295,7 +295,7 @@ class Launcher:
         for item in running:
             with contextlib.suppress(subprocess.TimeoutExpired):
                 item.process.wait(timeout=max(0.0, deadline - time.monotonic()))
-        codes = {}
+        codes: dict[str, int | None] = {}
         for item in running:
             _signal_group(item.process, signal.SIGKILL)  # the group: children of a stack's shell included
             codes[item.spec.name] = item.process.wait()

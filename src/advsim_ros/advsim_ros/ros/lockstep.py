@@ -16,11 +16,13 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from advsim_ros.contract import codec, names, topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.digests import InputDigest, PlanDigest
 from advsim_ros.contract.enums import Outcome, Phase
 from advsim_ros.contract.plan import plan_from_path
@@ -94,7 +96,7 @@ class StackNames:
         return self.renamed.get(topic.name, topic.name)
 
 
-def stack_endpoints(node: Node, topic: str, publishers: bool, names: StackNames) -> list[Any]:
+def stack_endpoints(node: Node, topic: str, publishers: bool, names: StackNames) -> list[TopicEndpointInfo]:
     """Endpoints of the stack (every node not of the attack graph) on a topic."""
     infos = node.get_publishers_info_by_topic(topic) if publishers else node.get_subscriptions_info_by_topic(topic)
     return [info for info in infos if info.node_name not in names.graph_nodes]
@@ -120,7 +122,7 @@ def _stack_gids(node: Node, names: StackNames) -> frozenset[bytes]:
     return frozenset(bytes(info.endpoint_gid) for info in endpoints)
 
 
-def connected(node: Node, latched: Iterable[Any], names: StackNames) -> bool:
+def connected(node: Node, latched: Iterable[Publisher], names: StackNames) -> bool:
     """The stack listens to the LiDAR and publishes plans, lidar_resim answers requests, and every
     endpoint the player shares with them (latched topics included) is matched on the player's side."""
     stack = bool(stack_endpoints(node, names(topics.LIDAR), False, names)) and stack_publishes(node, topics.PLAN, names)
@@ -145,7 +147,7 @@ class Readiness:
     for ``settle`` seconds before the first frame is sent.
     """
 
-    def __init__(self, node: Node, latched: Iterable[Any], settle: float, names: StackNames) -> None:
+    def __init__(self, node: Node, latched: Iterable[Publisher], settle: float, names: StackNames) -> None:
         self._node = node
         self._latched = list(latched)
         self._settle = settle
@@ -271,13 +273,14 @@ class PlayerConfig:
 class Outputs:
     """Where the replay sends things (publish functions of the player node)."""
 
-    clock: Callable[[Any], None]
-    tf: Callable[[Any], None]
-    odometry: Callable[[Any], None]
+    clock: Callable[[Msg], None]
+    tf: Callable[[Msg], None]
+    odometry: Callable[[Msg | bytes], None]
     lidar: Callable[[bytes], None]
     frame_request: Callable[[FrameRequestRecord], None]
-    episode: Callable[[EpisodeRecord, Any, Any], None]  # record, detections, predictions (decoded or None)
-    tf_message: Callable[[int, FloatArray], Any]  # sim stamp, world_T_ego -> tf2_msgs/TFMessage
+    # record, detections, predictions (decoded or None)
+    episode: Callable[[EpisodeRecord, Msg | None, Msg | None], None]
+    tf_message: Callable[[int, FloatArray], Msg]  # sim stamp, world_T_ego -> tf2_msgs/TFMessage
     trace: Callable[[str, int, int], None]  # event, query, frame (ros.trace)
     odometry_of: Callable[[int, FloatArray, VehicleState], bytes] | None = None  # closed loop: the simulated ego's
 
@@ -323,8 +326,8 @@ def replay_query(
     inputs_digest, plans_digest = InputDigest(), PlanDigest()
     delivered = received = awaited = 0
     plans_flowing = True
-    decision_plan: Any = None
-    answers: dict[str, Any] = {"detections": None, "predictions": None}
+    decision_plan: Msg | None = None  # nav_msgs/Path
+    answers: dict[str, Msg | None] = {"detections": None, "predictions": None}
     liveness.begin()
 
     def watch_stack() -> bool:  # while waiting for a sweep: note whether the stack is gone, give up only on stop
@@ -390,7 +393,8 @@ def replay_query(
                         answers[kind] = None if found is None else codec.decode(found, names.ACTOR_TRACK_ARRAY)
         phase = Phase.DECISION if decision else Phase.REPLAY
         outputs.episode(EpisodeRecord(query_id, phase, index, count, segment, delivered, received), None, None)
-    executed, reacted = None, ()
+    executed: TrackRecord | None = None
+    reacted: tuple[TrackRecord, ...] = ()
     if closed_loop is not None and decision_plan is not None and not liveness.check() and not stop.is_set():
         executed, reacted, loop_counts = _drive(
             query_id, count, closed_loop, decision_plan, history[-1], clock, config, outputs, inputs, stack_gone,
@@ -448,7 +452,7 @@ def _drive(
     query_id: int,
     history_count: int,
     setup: ClosedLoopSetup,
-    decision_plan: Any,
+    decision_plan: Msg,
     decision: HistoryFrame,
     clock: EpisodeClock,
     config: PlayerConfig,

@@ -10,13 +10,18 @@ import array
 import dataclasses
 import importlib
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 from rosidl_parser.definition import AbstractNestedType, NamespacedType
 
+from advsim_ros.contract.codec import Msg
 
-def message_class(type_name: str) -> type[Any]:
+# What message_to_dict makes of a message: builtins JSON can hold
+Builtin: TypeAlias = bool | int | float | str | list["Builtin"] | dict[str, "Builtin"] | None
+
+
+def message_class(type_name: str) -> type[Msg]:
     """The message class for 'pkg/msg/Name' or 'pkg/Name'."""
     parts = type_name.split("/")
     if len(parts) == 2:
@@ -26,12 +31,13 @@ def message_class(type_name: str) -> type[Any]:
     package, kind, name = parts
     try:
         module = importlib.import_module(f"{package}.{kind}")
-        return getattr(module, name)  # type: ignore[no-any-return]
+        message_type: type[Msg] = getattr(module, name)
+        return message_type
     except (ImportError, AttributeError) as error:
         raise ValueError(f"unknown message type {type_name!r}: {error}") from error
 
 
-def _field_names(message: Any) -> list[str]:
+def _field_names(message: Msg) -> list[str]:
     """Field names of an rclpy message or of a rosbags message dataclass (constants left out)."""
     if hasattr(message, "get_fields_and_field_types"):
         return list(message.get_fields_and_field_types())
@@ -39,30 +45,33 @@ def _field_names(message: Any) -> list[str]:
     return [f.name for f in dataclasses.fields(message) if not f.name.startswith("__") and not f.name.isupper()]
 
 
-def _is_message(value: Any) -> bool:
+def _is_message(value: object) -> bool:
     return hasattr(value, "get_fields_and_field_types") or (
         dataclasses.is_dataclass(value) and hasattr(value, "__msgtype__")
     )
 
 
-def message_to_dict(message: Any) -> dict[str, Any]:
+def message_to_dict(message: Msg) -> dict[str, Builtin]:
     """A message (rclpy or rosbags) as nested dicts and lists of builtins, in field order."""
     return {name: _value_to_builtin(getattr(message, name)) for name in _field_names(message)}
 
 
-def _value_to_builtin(value: Any) -> Any:
+def _value_to_builtin(value: Msg) -> Builtin:  # a field's value: message, array or scalar
     if _is_message(value):
         return message_to_dict(value)
     if isinstance(value, (list, tuple, array.array, np.ndarray)):
         return [_value_to_builtin(item) for item in value]
+    scalar: Builtin  # numpy's item() and a message's scalar fields are untyped
     if isinstance(value, np.generic):
-        return value.item()
+        scalar = value.item()
+        return scalar
     if isinstance(value, bytes):
         return list(value)
-    return value
+    scalar = value
+    return scalar
 
 
-def dict_to_message(message_type: type[Any], values: Mapping[str, Any]) -> Any:
+def dict_to_message(message_type: type[Msg], values: Mapping[str, Builtin]) -> Msg:
     """Build a message of `message_type` from a dict as produced by message_to_dict (missing keys keep defaults)."""
     message = message_type()
     fields = message_type.get_fields_and_field_types()
@@ -75,7 +84,9 @@ def dict_to_message(message_type: type[Any], values: Mapping[str, Any]) -> Any:
     return message
 
 
-def _builtin_to_value(slot_type: Any, value: Any) -> Any:
+# slot_type: rosidl_parser's description of the field (an untyped package); value: the field's as message_to_dict
+# wrote it, read back by that description (a dict for a message, a list for an array)
+def _builtin_to_value(slot_type: Any, value: Any) -> Msg:
     if isinstance(slot_type, NamespacedType):
         return dict_to_message(message_class("/".join([*slot_type.namespaces, slot_type.name])), value)
     if isinstance(slot_type, AbstractNestedType):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import rclpy
@@ -19,8 +18,10 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
 
 from advsim_ros.contract import topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.enums import Phase, Status
 from advsim_ros.contract.protocol import (
     EpisodeRecord,
@@ -36,7 +37,7 @@ from advsim_ros.contract.protocol import (
 from advsim_ros.contract.tracks import track_array_from_msg, track_array_msg
 from advsim_ros.core.types import ActorTrack, Perturbation
 from advsim_ros.ros.graph_node import RUN_ID_PARAMETER, GraphNode
-from advsim_ros.ros.introspect import describe, stack_graph
+from advsim_ros.ros.introspect import StackNodeInfo, describe, stack_graph
 from advsim_ros.ros.lockstep import StackNames, stack_endpoints
 
 
@@ -60,7 +61,7 @@ class _Pending:
 
     def lacking(self) -> list[str]:
         """The pieces still to come; an infeasible query is never replayed, so it has no episode or tracks."""
-        pieces = {"perturbation": self.perturbation, "score": self.score}
+        pieces: dict[str, object] = {"perturbation": self.perturbation, "score": self.score}
         if self.score is None or self.score.status != Status.INFEASIBLE:
             pieces |= {"episode DONE": self.episode, "perturbed tracks": self.tracks}
         return [name for name, piece in pieces.items() if piece is None]
@@ -78,7 +79,7 @@ class Progress:
     best_adversarial_loss: float = math.nan
     query: int = -1
     frame: int = 0
-    flags: dict[str, Any] = field(default_factory=dict)
+    flags: dict[str, object] = field(default_factory=dict)
 
 
 class AttackMonitor:
@@ -124,12 +125,12 @@ class AttackMonitor:
     def __exit__(self, *exc_info: object) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        try_shutdown(context=self.context)
 
     def _entry(self, query_id: int) -> _Pending:
         return self._pending.setdefault(query_id, _Pending())
 
-    def _on_score(self, message: Any) -> None:
+    def _on_score(self, message: Msg) -> None:
         score = score_from_msg(message)
         if score.query_id in self.skip:
             return
@@ -142,25 +143,25 @@ class AttackMonitor:
                 score.adversarial_loss if math.isnan(best) else max(best, score.adversarial_loss)
             )
 
-    def _on_perturbation(self, message: Any) -> None:
+    def _on_perturbation(self, message: Msg) -> None:
         perturbation = perturbation_from_msg(message)
         self._entry(perturbation.query_id).perturbation = perturbation
         self.progress.query = max(self.progress.query, perturbation.query_id)
 
-    def _on_selection(self, message: Any) -> None:
+    def _on_selection(self, message: Msg) -> None:
         self.selection = selection_from_msg(message)
 
-    def _on_episode(self, message: Any) -> None:
+    def _on_episode(self, message: Msg) -> None:
         episode = episode_from_msg(message)
         self.progress.frame = episode.frame_index
         if episode.phase == Phase.DONE:
             self._entry(episode.query_id).episode = episode
 
-    def _on_search_status(self, message: Any) -> None:
+    def _on_search_status(self, message: Msg) -> None:
         status = search_status_from_msg(message)
         self.search_finished, self.search_queries = status.finished, status.queries_asked
 
-    def _on_tracks(self, message: Any) -> None:
+    def _on_tracks(self, message: Msg) -> None:
         record = track_array_from_msg(message)
         self._entry(record.query_id).tracks = record.actor_tracks()
 
@@ -217,6 +218,6 @@ class AttackMonitor:
         seen = describe(stack_graph(node, self.stack_names.graph_nodes))
         return False, f"{' and '.join(missing)} ({seen})"
 
-    def stack_graph(self) -> list[dict[str, Any]]:
+    def stack_graph(self) -> list[StackNodeInfo]:
         """The stack's nodes with their topics, types and QoS (ros.introspect)."""
         return stack_graph(self.node, self.stack_names.graph_nodes)

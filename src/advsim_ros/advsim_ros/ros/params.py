@@ -11,7 +11,7 @@ from __future__ import annotations
 import array
 import dataclasses
 import typing
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.node import Node
@@ -20,13 +20,14 @@ from advsim_ros.core.params import config_from_mapping
 
 ConfigT = TypeVar("ConfigT")
 
-_SCALAR_TYPES = {
+# ROS parameter types (rcl_interfaces' ParameterType constants) by the config field's Python type
+_SCALAR_TYPES: dict[object, int] = {
     bool: ParameterType.PARAMETER_BOOL,
     int: ParameterType.PARAMETER_INTEGER,
     float: ParameterType.PARAMETER_DOUBLE,
     str: ParameterType.PARAMETER_STRING,
 }
-_ARRAY_TYPES = {
+_ARRAY_TYPES: dict[object, int] = {
     bool: ParameterType.PARAMETER_BOOL_ARRAY,
     int: ParameterType.PARAMETER_INTEGER_ARRAY,
     float: ParameterType.PARAMETER_DOUBLE_ARRAY,
@@ -34,7 +35,7 @@ _ARRAY_TYPES = {
 }
 
 
-def _parameter_type(annotation: Any, name: str) -> int:
+def _parameter_type(annotation: object, name: str) -> int:
     if annotation in _SCALAR_TYPES:
         return _SCALAR_TYPES[annotation]
     if typing.get_origin(annotation) is tuple:
@@ -44,12 +45,12 @@ def _parameter_type(annotation: Any, name: str) -> int:
     raise TypeError(f"config field {name}: type {annotation} has no ROS parameter type")
 
 
-def declare_parameters(node: Node, config_type: type[Any], prefix: str = "") -> dict[str, Any]:
+def declare_parameters(node: Node, config_type: type[object], prefix: str = "") -> dict[str, object]:
     """Declare every field of `config_type` as parameter `<prefix><field>`; return their values by field name."""
     if not dataclasses.is_dataclass(config_type):
         raise TypeError(f"{config_type} is not a dataclass")
     hints = typing.get_type_hints(config_type)
-    values: dict[str, Any] = {}
+    values: dict[str, object] = {}
     for field in dataclasses.fields(config_type):
         if not field.init:
             continue

@@ -8,9 +8,8 @@ subscriptions.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from rclpy.publisher import Publisher
 
 from advsim_ros.contract import codec, topics
 from advsim_ros.contract.protocol import episode_msg, frame_request_msg
@@ -27,7 +26,7 @@ AWAITED = (topics.RENDERED, topics.PLAN, topics.DETECTIONS, topics.PREDICTIONS, 
 
 def latch_scenario(
     node: GraphNode, scenario: Scenario, world_frame: str, ego_frame: str, sensor_frame: str, first_ns: int
-) -> list[Any]:
+) -> list[Publisher]:
     """Publish the scenario's latched topics, stamped with the window's first frame; their publishers, kept alive."""
     latched = [
         node.latch(topics.TF_STATIC, tf_message(first_ns, ego_frame, sensor_frame, scenario.ego_T_sensor)),

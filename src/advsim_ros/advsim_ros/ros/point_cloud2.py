@@ -17,7 +17,7 @@ from __future__ import annotations
 import array
 import collections
 from collections.abc import Iterable, Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -57,7 +57,7 @@ def fields_from_dtype(dtype: npt.DTypeLike) -> list[PointField]:
     return [PointField(name=s.name, offset=s.offset, datatype=s.datatype, count=s.count) for s in specs]
 
 
-def _indices(uvs: Iterable[Any], height: int, width: int) -> np.ndarray:
+def _indices(uvs: Iterable[int | Sequence[int]], height: int, width: int) -> np.ndarray:
     """Flat indices of the points ``uvs`` names (flat indices, or (u, v) = (column, row) pairs)."""
     items = np.asarray(list(uvs), dtype=np.int64)
     if items.ndim == 2 and items.shape[1] == 2:
@@ -80,7 +80,7 @@ def read_points(
     cloud: PointCloud2,
     field_names: Sequence[str] | None = None,
     skip_nans: bool = False,
-    uvs: Iterable[Any] | None = None,
+    uvs: Iterable[int | Sequence[int]] | None = None,
     reshape_organized_cloud: bool = False,
 ) -> np.ndarray:
     """The cloud's points as a structured array: all fields or ``field_names``; without points that have a NaN
@@ -114,12 +114,12 @@ def read_points_numpy(
     cloud: PointCloud2,
     field_names: Sequence[str] | None = None,
     skip_nans: bool = False,
-    uvs: Iterable[Any] | None = None,
+    uvs: Iterable[int | Sequence[int]] | None = None,
     reshape_organized_cloud: bool = False,
 ) -> np.ndarray:
     """read_points as a plain array, one column per field value; every read field must have the same datatype."""
     points = read_points(cloud, field_names, skip_nans, uvs, reshape_organized_cloud)
-    fields: dict[str, Any] = dict(points.dtype.fields or {})
+    fields = dict(points.dtype.fields or {})
     bases = {fields[name][0].base.newbyteorder("=") for name in points.dtype.names or ()}
     if len(bases) != 1:
         raise ValueError(
@@ -133,16 +133,19 @@ def read_points_list(
     cloud: PointCloud2,
     field_names: Sequence[str] | None = None,
     skip_nans: bool = False,
-    uvs: Iterable[Any] | None = None,
+    uvs: Iterable[int | Sequence[int]] | None = None,
 ) -> list[NamedTuple]:
     """read_points as a list of namedtuples ``Point`` with the field names as attributes (Python numbers)."""
     points = read_points(cloud, field_names, skip_nans, uvs)
-    point = collections.namedtuple("Point", points.dtype.names or (), rename=True)  # type: ignore[misc]
+    point = collections.namedtuple("Point", points.dtype.names or (), rename=True)  # type: ignore[misc]  # field names known at run time only
     return [point._make(values) for values in points.tolist()]
 
 
 def create_cloud(
-    header: Header, fields: Iterable[PointField], points: Iterable[Any], point_step: int | None = None
+    header: Header,
+    fields: Iterable[PointField],
+    points: np.ndarray | Iterable[Iterable[float]],
+    point_step: int | None = None,
 ) -> PointCloud2:
     """A PointCloud2 of ``points``: a structured array (fields by name; 2-D: an organized cloud), a 2-D array
     (one column per field value, in the order of ``fields``) or one iterable of values per point."""
@@ -177,7 +180,7 @@ def create_cloud(
     )
 
 
-def create_cloud_xyz32(header: Header, points: Iterable[Any]) -> PointCloud2:
+def create_cloud_xyz32(header: Header, points: np.ndarray | Iterable[Iterable[float]]) -> PointCloud2:
     """A PointCloud2 with float32 x, y, z fields from one (x, y, z) per point."""
     fields = [PointField(name=name, offset=4 * index, datatype=FLOAT32, count=1) for index, name in enumerate("xyz")]
     return create_cloud(header, fields, points)

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TypedDict, Unpack
 
 import numpy as np
 
-from advsim_ros.contract.codec import ContractError, stamp_ns
+from advsim_ros.contract.codec import ContractError, Msg, stamp_ns
 from advsim_ros.contract.enums import Outcome, Status
 from advsim_ros.contract.plan import PLAN_STEP_NS, plan_from_path
 from advsim_ros.contract.protocol import EpisodeRecord, ScoreRecord
@@ -20,6 +20,27 @@ from advsim_ros.core.objective import ScorerSettings
 from advsim_ros.core.reactive import with_reactions
 from advsim_ros.core.scoring import Detections, QueryEvaluation, evaluate_query
 from advsim_ros.core.types import ActorTrack, DrivableArea, Plan, Scenario, ScenarioError, replace_actors
+
+
+class _Common(TypedDict):
+    """What every QueryScore of an episode carries, whatever its status."""
+
+    wall_time: float  # [s]
+    sweeps_delivered: int
+    plans_received: int
+    input_digest: str
+    plan_digest: str
+
+
+class _ClosedLoop(TypedDict, total=False):
+    """A closed-loop QueryScore's figures beside the driven trajectory's."""
+
+    loop: str
+    open_loop_adversarial_loss: float  # [1]
+    open_loop_collision_5s: float  # [1]
+    min_distance: float  # [m]
+    min_time_to_collision: float  # [s]
+    progress: float  # [m]
 
 
 def _detections(record: TrackArrayRecord | None) -> Detections | None:
@@ -40,7 +61,7 @@ def _predictions(record: TrackArrayRecord | None, sim_offset_ns: int) -> Predict
     return Predictions(stamps - sim_offset_ns, np.stack([t.xyz[:, :2] for t in same]))
 
 
-def usable_plan(path: Any, world_frame: str, time_offset_ns: int = 0) -> Plan:
+def usable_plan(path: Msg, world_frame: str, time_offset_ns: int = 0) -> Plan:
     """The contract's plan in a nav_msgs/Path: in the world frame, finite, non-empty, increasing stamps.
 
     ContractError naming what is wrong. A plan in another frame is refused, not scored as if it
@@ -67,7 +88,7 @@ def score_episode(
     world_frame: str,
 ) -> ScoreRecord:
     """The QueryScore of a finished query: a failure status from the outcome, else the evaluated plan."""
-    common = {
+    common: _Common = {
         "wall_time": wall_time,
         "sweeps_delivered": episode.sweeps_delivered,
         "plans_received": episode.plans_received,
@@ -118,7 +139,7 @@ def score_episode(
     )  # fmt: skip
 
 
-def _score(query_id: int, evaluation: QueryEvaluation, common: dict[str, Any], **extra: Any) -> ScoreRecord:
+def _score(query_id: int, evaluation: QueryEvaluation, common: _Common, **extra: Unpack[_ClosedLoop]) -> ScoreRecord:
     terms, metrics = evaluation.terms, evaluation.metrics
     return ScoreRecord(
         query_id,

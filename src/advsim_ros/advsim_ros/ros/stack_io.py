@@ -5,20 +5,24 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Iterable
-from typing import Any, Protocol
+from typing import Generic, Protocol, TypeVar
+
+from rclpy.publisher import Publisher
 
 from advsim_ros.contract import codec, topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.qos import QosSpec
 from advsim_ros.core.types import ScenarioError
-from advsim_ros.ros.graph_node import GraphNode
+from advsim_ros.ros.graph_node import GraphNode, Publish
 from advsim_ros.ros.messages import message_class
 from advsim_ros.ros.qos import profile
 
-Due = tuple[topics.TopicSpec, int, int, Any]  # contract topic, sweep stamp, made [ns], answer
+Due = tuple[topics.TopicSpec, int, int, object]  # contract topic, sweep stamp, made [ns], answer (the converter's)
+TransformT = TypeVar("TransformT")  # the converter's own transform (adapters.plans.PlanarTransform), opaque here
 MATCH_WAIT = 2.0  # longest wait for the stack's readers to match before a message is relayed to them [s]
 
 
-def to_stack_publisher(node: GraphNode, spec: topics.TopicSpec) -> Callable[[Any], None]:
+def to_stack_publisher(node: GraphNode, spec: topics.TopicSpec) -> Publish:
     """A publisher to the stack whose first message waits (bounded) for the stack's readers to match.
 
     The player's readiness sees its own writers matched, not this hop's: a volatile reader of the
@@ -27,7 +31,7 @@ def to_stack_publisher(node: GraphNode, spec: topics.TopicSpec) -> Callable[[Any
     publisher = node.create_publisher(message_class(spec.msgtype), spec.name, profile(spec.offered))
     first = [True]
 
-    def publish(value: Any) -> None:
+    def publish(value: Msg | bytes) -> None:
         if first[0]:
             first[0] = False
             deadline = time.monotonic() + MATCH_WAIT
@@ -54,7 +58,7 @@ def relay_topic(
     if then is not None:
         relay = publish
 
-        def publish(raw: Any) -> None:
+        def publish(raw: bytes) -> None:
             relay(raw)
             then(raw)
 
@@ -94,12 +98,12 @@ class SweepOutlet:
         node: GraphNode,
         targets: list[str],
         tf_static: topics.TopicSpec,
-        reframe: Callable[[bytes], tuple[bytes, Any]] | None,
+        reframe: Callable[[bytes], tuple[bytes, Msg | None]] | None,  # the sweep, and a TFMessage or None
         then: Callable[[bytes], None],
     ) -> None:
         self.node, self.tf_static, self.reframe, self.then = node, tf_static, reframe, then
         self.publishers = [to_stack_publisher(node, dataclasses.replace(topics.LIDAR, name=t)) for t in targets]
-        self.tf_static_publishers: list[Any] = []  # latched: kept alive
+        self.tf_static_publishers: list[Publisher] = []  # latched: kept alive
 
     def __call__(self, raw: bytes) -> None:
         if self.reframe is not None:
@@ -111,21 +115,24 @@ class SweepOutlet:
         self.then(raw)
 
 
-class Converter(Protocol):
-    """How the stack's answers become the contract's messages (adapters.bridge.Answers)."""
+class Converter(Protocol[TransformT]):
+    """How the stack's answers become the contract's messages (adapters.bridge.Answers); an answer is the
+    converter's own value (the plan's poses, or a frame's tracks), handed back to it as it came."""
 
-    def decode(self, contract: topics.TopicSpec, msgtype: str, raw: bytes) -> tuple[int, Any]: ...
-    def arrived(self, contract: topics.TopicSpec, stamp_ns: int, answer: Any) -> Iterable[Due]: ...
-    def transform(self) -> Any: ...
-    def message(self, contract: topics.TopicSpec, sweep_ns: int, made_ns: int, answer: Any, transform: Any) -> Any: ...
+    def decode(self, contract: topics.TopicSpec, msgtype: str, raw: bytes) -> tuple[int, object]: ...
+    def arrived(self, contract: topics.TopicSpec, stamp_ns: int, answer: object) -> Iterable[Due]: ...
+    def transform(self) -> TransformT: ...
+    def message(
+        self, contract: topics.TopicSpec, sweep_ns: int, made_ns: int, answer: object, transform: TransformT
+    ) -> Msg: ...
 
 
-class AnswerOutlet:
+class AnswerOutlet(Generic[TransformT]):
     """The stack's answers in, the contract's messages out: each for the sweep it answers (``Converter``)."""
 
-    def __init__(self, node: GraphNode, converter: Converter) -> None:
+    def __init__(self, node: GraphNode, converter: Converter[TransformT]) -> None:
         self.node, self.converter = node, converter
-        self.publishers: dict[str, Callable[[Any], None]] = {}  # by contract topic
+        self.publishers: dict[str, Publish] = {}  # by contract topic
 
     def add(self, contract: topics.TopicSpec, theirs: topics.TopicSpec, qos: QosSpec, mode: str) -> None:
         """Publish ``contract`` from the stack's ``theirs`` (read with ``qos``); ``mode``: how it is timed, logged."""

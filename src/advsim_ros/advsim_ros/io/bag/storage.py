@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, BinaryIO, Protocol
 import apsw
 import numpy as np
 import yaml
-from lz4.frame import LZ4FrameDecompressor  # type: ignore[import-untyped]  # lz4 ships no type hints
+from lz4.frame import LZ4FrameDecompressor
 from rosbags.interfaces import Connection, MessageDefinitionFormat, Nodetype
 from rosbags.rosbag2 import Reader, storage_mcap
 from rosbags.rosbag2.errors import ReaderError
@@ -143,7 +143,7 @@ def _read_within(bio: BinaryIO, size: int) -> bytes:
 # rosbags (pinned) reads MCAP records and chunks whole: sizes are checked against what is there first, and
 # decompression stops at the declared size, so a corrupt size never allocates more than the bag holds.
 _read_exact = getattr(storage_mcap.read_exact, "__wrapped__", storage_mcap.read_exact)  # once, if imported again
-_read_within.__wrapped__ = _read_exact  # type: ignore[attr-defined]
+_read_within.__wrapped__ = _read_exact  # type: ignore[attr-defined]  # functools' marker, set by hand here
 storage_mcap.read_exact = _read_within
 storage_mcap.DECOMPRESSORS.update(zstd=_bounded(zstd.ZstdDecompressor), lz4=_bounded(LZ4FrameDecompressor))
 
