@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
 
 from advsim_ros import graph
 from advsim_ros.contract import topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.protocol import FrameRequestRecord, frame_request_from_msg
 from advsim_ros.contract.scenario import cloud_msg
 from advsim_ros.contract.tracks import track_array_from_msg
@@ -73,13 +73,13 @@ class LidarResim(ScenarioNode):
         self.subscribe(topics.FRAME_REQUEST, self._on_request)
         self.get_logger().info("ready")
 
-    def _on_tracks(self, message: Any) -> None:
+    def _on_tracks(self, message: Msg) -> None:
         record = track_array_from_msg(message)
         self.tracks = {q: t for q, t in self.tracks.items() if q >= record.query_id - 1}  # queries follow each other
         self.tracks[record.query_id] = record.actor_tracks()
         self._answer()
 
-    def _on_request(self, message: Any) -> None:
+    def _on_request(self, message: Msg) -> None:
         request = frame_request_from_msg(message)
         self.trace("request_received", request.query_id, request.frame_index)
         self.waiting.append(request)

@@ -11,12 +11,12 @@ QueryScore straight away, so the search goes on.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import numpy as np
 
 from advsim_ros import graph
 from advsim_ros.contract import topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.enums import Status
 from advsim_ros.contract.protocol import (
     ScoreRecord,
@@ -68,7 +68,7 @@ class Perturber(ScenarioNode):
         self.publish_score = self.publisher(topics.SCORE)
         self.subscribe(topics.PERTURBATION, self.on_perturbation)
 
-    def on_perturbation(self, message: Any) -> None:
+    def on_perturbation(self, message: Msg) -> None:
         perturbation = perturbation_from_msg(message)
         query_id = perturbation.query_id
         self.trace("perturbation_received", query_id)

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import queue
 import threading
-from typing import Any
 
-import rclpy
+from rclpy.utilities import ok
 
 from advsim_ros import graph
 from advsim_ros.contract import codec, topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.tracks import track_array_from_msg
 from advsim_ros.core.closed_loop import ControllerConfig
@@ -70,7 +70,7 @@ class ScenarioPlayer(ScenarioNode):
         self._driver.start()
         self.get_logger().info(f"ready: {len(self.history)} history frames from log frame {frames.start}")
 
-    def _on_tracks(self, message: Any) -> None:
+    def _on_tracks(self, message: Msg) -> None:
         query_id = int(message.query_id)
         if self.closed_loop is not None and self.closed_loop.reactive is not None:
             # queries follow one another: older tracks (a late joiner's latched copy) are not needed again
@@ -106,7 +106,7 @@ class ScenarioPlayer(ScenarioNode):
                     stack_outputs, self._stop, self.closed_loop, moved,
                 )  # fmt: skip
             except Exception:
-                if self._stop.is_set() or not rclpy.ok():  # shutting down: the graph API is gone
+                if self._stop.is_set() or not ok():  # shutting down: the graph API is gone
                     return
                 raise
 

@@ -11,10 +11,10 @@ decision plan unanswered: `stack_timeout`; a plan that cannot be read: `stack_er
 from __future__ import annotations
 
 import time
-from typing import Any
 
 from advsim_ros import graph
 from advsim_ros.contract import topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.enums import Outcome, Phase
 from advsim_ros.contract.protocol import EpisodeRecord, episode_from_msg, score_msg
 from advsim_ros.contract.tracks import track_array_from_msg
@@ -48,12 +48,12 @@ class Scorer(ScenarioNode):
         self.subscribe(topics.EPISODE, self._on_episode)
         self.get_logger().info(f"ready: scoring plans of log frame {self.decision_frame}")
 
-    def _on_tracks(self, message: Any) -> None:
+    def _on_tracks(self, message: Msg) -> None:
         record = track_array_from_msg(message)
         self.tracks[record.query_id] = record.actor_tracks()
         self._score_ready()
 
-    def _on_episode(self, message: Any) -> None:
+    def _on_episode(self, message: Msg) -> None:
         episode = episode_from_msg(message)
         if episode.phase == Phase.START:
             self.started[episode.query_id] = time.monotonic()

@@ -18,12 +18,12 @@ import math
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from advsim_ros import graph
 from advsim_ros.contract import topics
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.protocol import (
     SearchStatusRecord,
     score_from_msg,
@@ -60,10 +60,10 @@ class SearchNode(GraphNode):
         self._driver = threading.Thread(target=self._run, name="search", daemon=True)
         self._driver.start()
 
-    def _on_selection(self, message: Any) -> None:
+    def _on_selection(self, message: Msg) -> None:
         self._board.select(selection_from_msg(message))
 
-    def _on_score(self, message: Any) -> None:
+    def _on_score(self, message: Msg) -> None:
         score = score_from_msg(message)
         self.trace("score_received", score.query_id)
         self._board.score(score.query_id, score.adversarial_loss if score.ok else math.nan)
