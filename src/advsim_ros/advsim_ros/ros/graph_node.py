@@ -39,7 +39,19 @@ SUBSCRIPTION_DEPTH = 100
 Publish = Callable[[Msg | bytes], None]  # publishes a typestore message object or ready CDR bytes
 
 
-class GraphNode(Node):
+class TypedNode(Node):
+    """rclpy's Node with the two methods rclpy leaves unannotated typed (unchanged): the graph's nodes and the
+    reference stacks' derive from it."""
+
+    def get_logger(self) -> RcutilsLogger:
+        logger: RcutilsLogger = Node.get_logger(self)
+        return logger
+
+    def destroy_node(self) -> None:
+        Node.destroy_node(self)
+
+
+class GraphNode(TypedNode):
     """A node that speaks the contract as CDR, knows the attack's window and ignores other runs."""
 
     def __init__(
@@ -50,14 +62,6 @@ class GraphNode(Node):
         self.trace = Trace(name)
         self._foreign_runs: set[tuple[str, int]] = set()
         self._publishers_by_topic: dict[str, Publisher] = {}
-
-    # rclpy leaves these two unannotated: typed here, unchanged, for every node of the graph
-    def get_logger(self) -> RcutilsLogger:
-        logger: RcutilsLogger = Node.get_logger(self)
-        return logger
-
-    def destroy_node(self) -> None:
-        Node.destroy_node(self)
 
     def publisher(self, topic: TopicSpec, qos: QosSpec | None = None) -> Publish:
         """A publish function taking a typestore message object or ready CDR bytes."""

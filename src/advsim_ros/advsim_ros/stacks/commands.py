@@ -9,7 +9,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -229,7 +229,7 @@ def train_il_command(
     log: Callable[[str], None],
     scheme: str = "standard",
     adversarial_dir: Path | Sequence[Path] | None = None,
-) -> dict[str, Any]:
+) -> dict[str, object]:
     """Train the learned planner and write its weights; returns the training report as a dict.
 
     Curriculum training ranks windows with the curation parameters (params/curation.yaml, as campaigns do).

@@ -103,7 +103,7 @@ def run(factory: Callable[[], Node]) -> None:
         pass
     finally:
         node.destroy_node()
-        rclpy.try_shutdown()
+        rclpy.try_shutdown()  # type: ignore[attr-defined]  # rclpy re-exports it without listing it in __all__
 
 
 if __name__ == "__main__":

@@ -38,10 +38,12 @@ def default_params_file(filename: str) -> Path:
         return candidate
 
 
-def section_types(config_type: type[Any]) -> dict[str, type[Any]]:
+def section_types(config_type: type[object]) -> dict[str, type[object]]:
     """Section name -> section dataclass of a sectioned config."""
+    if not dataclasses.is_dataclass(config_type):
+        raise TypeError(f"{config_type} is not a dataclass")
     hints = typing.get_type_hints(config_type)
-    sections: dict[str, type[Any]] = {}
+    sections: dict[str, type[object]] = {}
     for field in dataclasses.fields(config_type):
         annotation = hints[field.name]
         if not (isinstance(annotation, type) and dataclasses.is_dataclass(annotation)):
@@ -50,6 +52,7 @@ def section_types(config_type: type[Any]) -> dict[str, type[Any]]:
     return sections
 
 
+# mapping: the YAML's sections as parsed (untyped like any YAML; core.params checks every value)
 def config_from_sections(config_type: type[ConfigT], mapping: Mapping[str, Any], context: str) -> ConfigT:
     """A sectioned config from nested mappings; sections left out keep their defaults."""
     if not isinstance(mapping, Mapping):

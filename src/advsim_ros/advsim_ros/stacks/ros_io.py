@@ -10,12 +10,12 @@ future time), detections and predictions as advsim_msgs/ActorTrackArray.
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from advsim_ros.contract import codec
+from advsim_ros.contract.codec import Msg
 from advsim_ros.contract.plan import path_cdr
 from advsim_ros.contract.spatial import odometry_pose
 from advsim_ros.contract.tracks import track_array_cdr
@@ -39,7 +39,7 @@ class PoseBuffer:
         self.world_frame = ""
         self.ego_frame = ""
 
-    def add_odometry(self, odometry: Any) -> None:
+    def add_odometry(self, odometry: Msg) -> None:  # nav_msgs/Odometry (rclpy)
         stamp = codec.stamp_ns(odometry.header.stamp)
         pose = odometry_pose(odometry, "odometry")
         twist = odometry.twist.twist

@@ -14,10 +14,11 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Generic, Protocol, TypeVar
 
 from nav_msgs.msg import Odometry, Path
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
@@ -29,25 +30,36 @@ from advsim_ros.contract.pointcloud import cloud_to_points
 from advsim_ros.contract.scenario import road_map_from_msg
 from advsim_ros.contract.spatial import transforms_of
 from advsim_ros.core.types import FloatArray, ScenarioError
+from advsim_ros.ros.graph_node import TypedNode
 from advsim_ros.ros.params import declare_config
 from advsim_ros.ros.qos import profile
 from advsim_ros.ros.trace import Trace
-from advsim_ros.stacks.interface import AutonomyStack, StackFrame, TopicIoConfig, points_xyz
+from advsim_ros.stacks.interface import AutonomyStack, EgoMotion, StackFrame, TopicIoConfig, points_xyz
 from advsim_ros.stacks.params import section_types
 from advsim_ros.stacks.ros_io import PoseBuffer, mount_matrix, output_messages
 
 
-def declare_sections(node: Node, config_type: type[Any]) -> Any:
+class StackConfig(Protocol):
+    """A reference stack's sectioned config: its sections, the topic I/O among them."""
+
+    @property
+    def io(self) -> TopicIoConfig: ...
+
+
+ConfigT = TypeVar("ConfigT", bound=StackConfig)
+
+
+def declare_sections(node: Node, config_type: type[ConfigT]) -> ConfigT:
     """A sectioned stack config from ROS parameters `<section>.<key>` (defaults: the dataclasses')."""
     return config_type(
         **{name: declare_config(node, section, f"{name}.") for name, section in section_types(config_type).items()}
     )
 
 
-class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
+class StackNode(TypedNode, Generic[ConfigT]):
     """One reference stack as a ROS node."""
 
-    def __init__(self, name: str, make_stack: Callable[[Any], AutonomyStack], config_type: type[Any]) -> None:
+    def __init__(self, name: str, make_stack: Callable[[ConfigT], AutonomyStack], config_type: type[ConfigT]) -> None:
         super().__init__(name)
         self.config = declare_sections(self, config_type)
         io: TopicIoConfig = self.config.io
@@ -154,7 +166,9 @@ class StackNode(Node):  # type: ignore[misc]  # rclpy has no type stubs
             self._pending.popleft()
             self._plan(cloud, stamp, mount, *found)
 
-    def _plan(self, cloud: PointCloud2, stamp: int, mount: FloatArray, world_T_ego: FloatArray, motion: Any) -> None:
+    def _plan(
+        self, cloud: PointCloud2, stamp: int, mount: FloatArray, world_T_ego: FloatArray, motion: EgoMotion
+    ) -> None:
         self.trace("planning")
         try:
             frame = StackFrame(

@@ -41,7 +41,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -89,12 +89,25 @@ def window_split(log_id: str, first_frame: int, num_frames: int, config: Learned
     return "test"
 
 
+class ShardEntry(TypedDict):
+    """One shard of a training export, as its index lists it."""
+
+    name: str  # the regression suite's scenario
+    file: str  # <name>.npz beside the index
+    split: str  # "train", "validation" or "test"
+    samples: int
+    log: str  # the log the window is of
+    window_start: int  # its first frame in that log
+    found_on: str | None  # the stack the suite entry was found on
+    recorded: dict[str, float | None] | None  # its recorded figures (adversarial_loss, collision_3s, collision_5s)
+
+
 @dataclass(frozen=True)
 class TrainingExport:
     """What `advsim export training` wrote."""
 
     out_dir: Path
-    shards: tuple[dict[str, Any], ...]
+    shards: tuple[ShardEntry, ...]
 
     def describe(self) -> str:
         counts = {split: sum(s["samples"] for s in self.shards if s["split"] == split) for split in SPLITS}
@@ -112,7 +125,7 @@ def export_training(
     except (OSError, ValueError, KeyError, TypeError):
         raise StackError(f"{suite}: not a regression suite (expected {INDEX_NAME} of `advsim campaign`)") from None
     out_dir.mkdir(parents=True, exist_ok=True)
-    shards = []
+    shards: list[ShardEntry] = []
     for entry in scenarios:
         layout = bag_layout_of(entry.get("bag_params"), f"{index_path} {entry['name']} bag_params")
         scenario = read_scenario_bag(suite / entry["bag"], config=layout)  # in the layout the attack wrote it

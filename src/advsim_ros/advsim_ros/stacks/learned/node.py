@@ -8,7 +8,7 @@ from advsim_ros.stacks.learned.stack import LearnedStack
 from advsim_ros.stacks.stack_node import StackNode
 
 
-def make_node() -> StackNode:
+def make_node() -> StackNode[LearnedStackConfig]:
     return StackNode(NODE_NAME, LearnedStack, LearnedStackConfig)
 
 

@@ -9,7 +9,6 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -69,7 +68,7 @@ class InputBuilder:
         )
 
 
-def save_weights(model: BevPlanner, config: LearnedStackConfig, path: Path, metadata: dict[str, Any]) -> None:
+def save_weights(model: BevPlanner, config: LearnedStackConfig, path: Path, metadata: dict[str, object]) -> None:
     """Write the weights (float32 state dict plus the config they fit) atomically."""
     payload = {
         "format": WEIGHTS_FORMAT,
@@ -82,7 +81,7 @@ def save_weights(model: BevPlanner, config: LearnedStackConfig, path: Path, meta
     write_payload(payload, path)
 
 
-def write_payload(payload: dict[str, Any], path: Path) -> None:
+def write_payload(payload: dict[str, object], path: Path) -> None:
     """torch.save into memory first (the archive is then named the same whatever the file's name, so the
     same weights give the same bytes), then to a temporary file beside `path`, renamed into place."""
     buffer = io.BytesIO()
@@ -99,7 +98,7 @@ def write_payload(payload: dict[str, Any], path: Path) -> None:
             os.unlink(temporary)
 
 
-def load_model(config: LearnedStackConfig, path: Path | None = None) -> tuple[BevPlanner, dict[str, Any]]:
+def load_model(config: LearnedStackConfig, path: Path | None = None) -> tuple[BevPlanner, dict[str, object]]:
     """The planner with its trained weights; StackError when the file is missing or was made for other inputs."""
     path = path or config.weights_path
     if not path.is_file():
@@ -123,7 +122,7 @@ def load_model(config: LearnedStackConfig, path: Path | None = None) -> tuple[Be
     model = BevPlanner(config.raster, config.model, config.num_steps)
     model.load_state_dict(payload["state_dict"])
     model.eval()
-    metadata: dict[str, Any] = payload.get("metadata", {})
+    metadata: dict[str, object] = payload.get("metadata", {})  # what train_il recorded (JSON-like values)
     return model, metadata
 
 

@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -202,7 +202,9 @@ def train_planner(
                 batch = (images[pick].float(), features[pick], priors[pick], targets[pick])
                 if training.mirror:
                     mirrored = _mirror(*batch)
-                    batch = tuple(torch.cat([a, b]) for a, b in zip(batch, mirrored, strict=True))  # type: ignore[assignment]
+                    batch = tuple(  # type: ignore[assignment]  # the same four tensors, each doubled
+                        torch.cat([a, b]) for a, b in zip(batch, mirrored, strict=True)
+                    )
                 optimiser.zero_grad()
                 loss = loss_function(model(batch[0], batch[1], batch[2]), batch[3])
                 loss.backward()
@@ -327,7 +329,7 @@ def train_il(
         scenario_id = source.rsplit("@", 1)[0]
         sources[scenario_id] = sources.get(scenario_id, 0) + 1
     fine_tuned = scheme != "standard"
-    metadata: dict[str, Any] = {
+    metadata: dict[str, object] = {
         "samples": data.count,
         "sources": sources,
         "epochs": len(losses),

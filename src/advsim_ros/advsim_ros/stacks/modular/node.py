@@ -8,7 +8,7 @@ from advsim_ros.stacks.modular.stack import ModularStack
 from advsim_ros.stacks.stack_node import StackNode
 
 
-def make_node() -> StackNode:
+def make_node() -> StackNode[ModularStackConfig]:
     return StackNode(NODE_NAME, ModularStack, ModularStackConfig)
 
 
