@@ -19,7 +19,8 @@ from advsim_ros.attack.follow import stack_log_tails
 from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
-from advsim_ros.core.search.registry import ALGORITHM_NAMES, RENAMED_ALGORITHMS
+from advsim_ros.core.renamed import RENAMED_ALGORITHMS
+from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 from advsim_ros.io.synthetic import SyntheticConfig, write_synthetic_bag
 from advsim_ros.io.synthetic_families import FAMILY_NAMES
@@ -101,8 +102,13 @@ def add_attack_commands(subparsers: argparse._SubParsersAction[argparse.Argument
 class _StackCommands(argparse.Action):
     """--stack, repeatable: the first one given replaces the default, each further one adds a process."""
 
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
-                 option_string: str | None = None) -> None:  # fmt: skip
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: str | Sequence[object] | None,
+        option_string: str | None = None,
+    ) -> None:
         given = getattr(namespace, self.dest)
         setattr(namespace, self.dest, [*([] if given is self.default else given), values])
 
@@ -194,6 +200,7 @@ def stack_spec(args: argparse.Namespace) -> StackSpec:
     return dataclasses.replace(spec, restart=not args.no_restart, remap_mode=args.remap_mode)
 
 
+# the values are YAML as parsed, nested by dotted key: untyped until each node's config checks its own
 def parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
     """--param NODE.KEY=VALUE items as {node: {key: value}} (dotted keys nest as in the params files)."""
     overrides: dict[str, dict[str, Any]] = {}
@@ -214,24 +221,26 @@ def parameter_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
     return overrides
 
 
-def _progress_printer(total: int) -> Any:
+class _ProgressPrinter:
     """A tqdm bar over the attack's queries, shown from the first finished query on."""
-    bars: list[Any] = []
 
-    def update(progress: dict[str, Any]) -> None:
+    def __init__(self, total: int) -> None:
+        self.total = total
+        self.bars: list[tqdm] = []
+
+    # progress: the attack's progress counts (attack.run passes them as a dict[str, Any])
+    def __call__(self, progress: dict[str, Any]) -> None:
+        bars = self.bars
         if not bars:
-            bars.append(tqdm(total=total, unit="query", desc="attack", dynamic_ncols=True))
+            bars.append(tqdm(total=self.total, unit="query", desc="attack", dynamic_ncols=True))
         bar = bars[0]
         bar.update(progress["journaled"] - bar.n)
         best = progress["best_adversarial_loss"]
         bar.set_postfix(best_L_adv="-" if math.isnan(best) else f"{best:.3f}", failed=progress["failed"])
 
-    def close() -> None:
-        for bar in bars:
+    def close(self) -> None:
+        for bar in self.bars:
             bar.close()
-
-    update.close = close  # type: ignore[attr-defined]
-    return update
 
 
 def _run_attack(args: argparse.Namespace) -> int:
@@ -261,7 +270,7 @@ def _run_attack(args: argparse.Namespace) -> int:
 
 def _attack_and_report(options: AttackOptions) -> int:
     # the original, the search, the re-runs of the best, then the controls: the original again and the identity
-    progress = _progress_printer(options.queries + 1 + options.reruns * (options.rerun_top + 1) + 1)
+    progress = _ProgressPrinter(options.queries + 1 + options.reruns * (options.rerun_top + 1) + 1)
     try:
         for note in search_notes(options):
             where = f"--algo {options.algorithm} --queries {options.queries}"
@@ -279,6 +288,7 @@ def _attack_and_report(options: AttackOptions) -> int:
     return _exit_code(options, result.out_dir, summary)
 
 
+# summary: summary.json as attack/ builds it (a dict[str, Any] there, until attack/ is typed)
 def _print_outputs(out_dir: Path, summary: dict[str, Any]) -> None:
     """Where to look: only the files this run left (a run whose queries failed has no adversarial bag or report)."""
     outputs = summary.get("outputs", {})

@@ -6,12 +6,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
 from advsim_ros.cli.common import CommandError
 from advsim_ros.io.bag import add_bag_params_option, bag_params_config
+
+if TYPE_CHECKING:
+    from advsim_ros.campaign.suite import Verdict
 
 
 def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -49,10 +52,15 @@ def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.Argume
     regress.set_defaults(run=_run_regress)
 
 
-def _progress() -> Any:
-    bars: list[Any] = []
+class _Progress:
+    """A tqdm bar over the campaign's attacks, shown from the first progress report on."""
 
-    def update(state: dict[str, Any]) -> None:
+    def __init__(self) -> None:
+        self.bars: list[tqdm] = []
+
+    # state: the campaign's progress counts (campaign.schedule passes them as a dict[str, Any])
+    def __call__(self, state: dict[str, Any]) -> None:
+        bars = self.bars
         if not bars:
             bars.append(tqdm(total=state["attacks"], initial=state["done"], unit="attack", desc="campaign"))
         bar = bars[0]
@@ -62,12 +70,9 @@ def _progress() -> Any:
             shown["transfer_replays"] = f"{state['replayed']}/{state['replays']}"
         bar.set_postfix(shown)
 
-    def close() -> None:
-        for bar in bars:
+    def close(self) -> None:
+        for bar in self.bars:
             bar.close()
-
-    update.close = close  # type: ignore[attr-defined]
-    return update
 
 
 def _note(text: str) -> None:
@@ -79,7 +84,7 @@ def _run_campaign(args: argparse.Namespace) -> int:
     from advsim_ros.campaign.schedule import run_campaign
 
     bag_config = bag_params_config(args.bag_params)  # for the config's bag | bags without a bag_params of their own
-    progress = _progress()
+    progress = _Progress()
     try:
         journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress, _note, bag_config)
     finally:
@@ -109,16 +114,17 @@ def _run_table2(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stack_entry(args: argparse.Namespace) -> Any:
-    remap = {}
+def _stack_entry(args: argparse.Namespace) -> str | dict[str, object]:
+    remap: dict[str, str] = {}
     for item in args.remap:
         source, separator, target = item.partition(":=")
         if not separator or not source or not target:
             raise CommandError(f"--remap {item!r}: expected FROM:=TO")
         remap[source] = target
-    if args.stack in ("reference", "learned") and not remap:
-        return args.stack
-    return {"name": "stack", "command": args.stack, "remap": remap}
+    stack: str = args.stack
+    if stack in ("reference", "learned") and not remap:
+        return stack
+    return {"name": "stack", "command": stack, "remap": remap}
 
 
 def _run_regress(args: argparse.Namespace) -> int:
@@ -132,7 +138,7 @@ def _run_regress(args: argparse.Namespace) -> int:
     out = (args.out or suite.with_name(f"{suite.name}-regress")).resolve()
     print(f"regress: {len(scenarios)} scenarios of {suite} on {args.stack}")
 
-    def show(verdict: Any) -> None:
+    def show(verdict: Verdict) -> None:
         print(f"  {verdict.outcome.upper():7s} {verdict.name}  {verdict.message}", flush=True)
 
     verdicts = regress(suite, entry, out, args.plan_timeout, show)

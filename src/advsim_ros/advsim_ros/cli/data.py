@@ -15,7 +15,11 @@ def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     """`advsim convert kitti|av2` and `advsim curate` (logic in advsim_ros.io.commands)."""
     from advsim_ros.io import commands
 
-    bag_params = {"type": Path, "default": None, "help": "bag topics and frames (default: params/bag.yaml values)"}
+    def add_bag_params(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--params", type=Path, default=None, help="bag topics and frames (default: params/bag.yaml values)"
+        )
+
     convert = subparsers.add_parser("convert", help="convert a driving log into a scenario bag (rosbag2, MCAP)")
     sources = convert.add_subparsers(dest="source", required=True, metavar="SOURCE")
 
@@ -24,7 +28,7 @@ def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     kitti.add_argument("--seq", default="0000", help="sequence number (default 0000)")
     kitti.add_argument("--poses", type=Path, default=None, help="poses file (default: root/poses/<seq>_*velo*.txt)")
     kitti.add_argument("-o", "--output", type=Path, required=True, help="bag folder to write")
-    kitti.add_argument("--params", **bag_params)
+    add_bag_params(kitti)
     kitti.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     kitti.set_defaults(
         run=lambda args: print_result(
@@ -37,7 +41,7 @@ def add_data_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     av2 = sources.add_parser("av2", help="Argoverse 2 log (annotations, ego poses, vector map, LiDAR if present)")
     av2.add_argument("log_dir", type=Path, help="log folder, e.g. ../shared/data/av2/<log id>")
     av2.add_argument("-o", "--output", type=Path, required=True, help="bag folder to write")
-    av2.add_argument("--params", **bag_params)
+    add_bag_params(av2)
     av2.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     av2.add_argument(
         "--lidar",
