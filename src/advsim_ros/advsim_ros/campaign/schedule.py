@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from advsim_ros.attack.run import search_notes
-from advsim_ros.campaign.config import AttackPlan, Campaign, expand, load_campaign, materialize
+from advsim_ros.campaign.config import AttackPlan, Campaign, CampaignError, expand, load_campaign, materialize
 from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
 from advsim_ros.campaign.worker import RESULT_NAME
@@ -171,7 +171,7 @@ def run_campaign(
     """
     campaign = load_campaign(config, bag_config)
     if workers < 1:
-        raise ValueError(f"--workers: must be at least 1, got {workers}")
+        raise CampaignError(f"--workers: must be at least 1, got {workers}")
     out_dir = out_dir.resolve()
     if (out_dir / JOURNAL_NAME).exists():  # another campaign's folder is refused before anything is written
         CampaignJournal.open(out_dir, campaign.digest, campaign.path)

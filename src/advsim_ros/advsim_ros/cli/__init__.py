@@ -7,6 +7,7 @@ import errno
 import logging
 import signal
 import sys
+import traceback
 from collections.abc import Sequence
 
 from advsim_ros import __version__
@@ -17,8 +18,8 @@ from advsim_ros.cli.common import CommandError
 from advsim_ros.cli.data import add_data_commands, add_label_commands, add_synth_commands
 from advsim_ros.cli.doctor import add_doctor_commands
 from advsim_ros.cli.stacks import add_stack_commands, add_training_export_command
+from advsim_ros.core.errors import UserError
 from advsim_ros.export.command import add_export_commands
-from advsim_ros.ros.launcher import LaunchError
 from advsim_ros.viz.command import add_viz_commands
 
 __all__ = ["CommandError", "build_parser", "main"]
@@ -72,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as error:
         print(f"advsim {args.command}: error: {_os_error_text(error, args)}", file=sys.stderr)
         return 1
-    except (CommandError, ValueError, AttackError, LaunchError) as error:
+    except (UserError, AttackError) as error:  # AttackError: attack/'s own, not a UserError subclass yet
         print(f"advsim {args.command}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
@@ -87,6 +88,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 143
+    except Exception as error:  # a bug, not the user's: one line saying so, then where it happened
+        summary = " ".join(str(error).split())[:300]  # one line, whatever the message spans
+        print(f"advsim {args.command}: internal error: {type(error).__name__}: {summary}", file=sys.stderr)
+        traceback.print_exc()
+        return 1
     finally:
         signal.signal(signal.SIGTERM, previous)
     return result

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from advsim_ros.core.errors import UserError
 
-class CommandError(RuntimeError):
+
+class CommandError(UserError, RuntimeError):
     """A command failed for a reason the user can act on; printed without a traceback."""
 
 

@@ -20,12 +20,14 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
+from advsim_ros.core.errors import UserError
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(UserError, ValueError):
     """Input that cannot form a valid scenario; the message names the problem."""
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from advsim_ros.core.atomic import OutputExistsError
 from advsim_ros.core.curation import (
     CurationConfig,
     CurationWindow,
@@ -17,7 +18,7 @@ from advsim_ros.core.curation import (
     curate_windows,
     load_curation_config,
 )
-from advsim_ros.core.types import Scenario
+from advsim_ros.core.types import Scenario, ScenarioError
 from advsim_ros.io.av2 import load_av2_log
 from advsim_ros.io.bag import BagConfig, load_bag_config, read_scenario_bag, summarize_bag, write_scenario_bag
 from advsim_ros.io.kitti import load_kitti_tracking
@@ -92,11 +93,11 @@ def convert_av2(
 ) -> ConversionReport:
     """Argoverse 2 log -> scenario bag; ``lidar="simulate"`` renders a sweep per frame (io/av2_lidar.py)."""
     if lidar not in ("real", "simulate"):
-        raise ValueError(f"--lidar must be 'real' or 'simulate', got {lidar!r}")
+        raise ScenarioError(f"--lidar must be 'real' or 'simulate', got {lidar!r}")
     started = time.perf_counter()
     config = bag_config(params)
     if output.exists() and not overwrite:  # before minutes of rendering
-        raise ValueError(f"{output} exists already; remove it or choose another output path")
+        raise OutputExistsError(f"{output} exists already; remove it or choose another output path")
     scenario = load_av2_log(log_dir)
     source = f"av2/{Path(log_dir).name}"
     if lidar == "simulate":

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
+from advsim_ros.core.errors import UserError
 from advsim_ros.ros.identity import RUN_MARKER, RUN_PIDS
 
 # Fast DDS accepts domain ids 0..232; the low ones are left to the user's own graphs.
@@ -37,7 +38,7 @@ _LOCK_DIR = Path(tempfile.gettempdir()) / "advsim_ros_domains"
 FASTDDS_PROFILES = Path(__file__).resolve().parent / "fastdds_graph.xml"
 
 
-class LaunchError(RuntimeError):
+class LaunchError(UserError, RuntimeError):
     """A process of the graph could not be started or exited unexpectedly."""
 
 
