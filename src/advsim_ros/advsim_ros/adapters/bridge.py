@@ -33,7 +33,7 @@ from advsim_ros.adapters.plans import PlanarTransform, contract_plan, ego_before
 from advsim_ros.adapters.profile import PoseInput, StackProfile
 from advsim_ros.adapters.timing import PlanBook
 from advsim_ros.contract import codec, names, topics
-from advsim_ros.contract.codec import ContractError
+from advsim_ros.contract.codec import ContractError, Msg
 from advsim_ros.contract.plan import path_msg
 from advsim_ros.contract.qos import QosSpec, Reliability
 from advsim_ros.contract.spatial import odometry_msg, tf_message, transforms_of
@@ -130,7 +130,7 @@ def sweep_targets(profile: StackProfile) -> list[str] | None:
     return [topic for topic in (lidar.topic, *lidar.also) if topic != topics.LIDAR.name]
 
 
-def reframed(raw: bytes, frame: str, seen: set[str]) -> tuple[bytes, Any]:
+def reframed(raw: bytes, frame: str, seen: set[str]) -> tuple[bytes, Msg | None]:
     """The sweep (CDR) in the stack's sensor frame ``frame``, and the tf_static message from the sweep's own frame
     to it when that frame is not in ``seen`` yet (then added); None when it is."""
     cloud = codec.decode(raw, names.POINTCLOUD2)
@@ -166,7 +166,9 @@ def answer_routes(profile: StackProfile) -> list[AnswerRoute]:
     ]
 
 
-Due = tuple[topics.TopicSpec, int, int, Any]  # contract topic, sweep stamp, made [ns], answer
+# contract topic, sweep stamp, made [ns], answer. An answer is the plan's Poses or (frame, tracks), by its topic:
+# Any, as the topic (a value) says which, where these are read
+Due = tuple[topics.TopicSpec, int, int, Any]
 
 
 @dataclass
@@ -187,7 +189,7 @@ class Answers:
                 if route.converted:
                     self.books[route.contract.name] = PlanBook(self.profile.timing)
 
-    def heard_odometry(self, odometry: Any) -> int:
+    def heard_odometry(self, odometry: Msg) -> int:
         """The contract's odometry (decoded) of a frame: the ego's speed, where it is, the world frame; its stamp."""
         stamp = codec.stamp_ns(odometry.header.stamp)
         self.world_frame = odometry.header.frame_id
@@ -203,7 +205,7 @@ class Answers:
         for book in self.books.values():
             book.sweep(stamp_ns)
 
-    def heard_tf(self, message: Any) -> None:
+    def heard_tf(self, message: Msg) -> None:
         self.tf_edges.update(transforms_of(message))
 
     def decode(self, contract: topics.TopicSpec, msgtype: str, raw: bytes) -> tuple[int, Any]:
@@ -244,7 +246,7 @@ class Answers:
 
     def message(
         self, contract: topics.TopicSpec, sweep_ns: int, made_ns: int, answer: Any, transform: PlanarTransform
-    ) -> Any:
+    ) -> Msg:
         """The contract's message for the sweep stamped sweep_ns from an answer the stack made at made_ns."""
         plan_output = self.profile.outputs.plan
         world = self.world_frame or "world"

@@ -7,19 +7,19 @@ and ``POSE_MSGTYPES``.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
 from advsim_ros.adapters.plans import PlanarTransform, Poses, geodetic_of, yaw_of_quaternion
 from advsim_ros.adapters.profile import Datum
 from advsim_ros.contract import names
-from advsim_ros.contract.codec import NS_PER_S, header_msg, message, stamp_ns
+from advsim_ros.contract.codec import NS_PER_S, Msg, header_msg, message, stamp_ns
 from advsim_ros.contract.plan import without_orientation
 from advsim_ros.contract.spatial import odometry_pose
 from advsim_ros.contract.tracks import TrackRecord, track_array_from_msg
 from advsim_ros.core.futures import interpolate_trajectory
-from advsim_ros.core.types import ActorClass
+from advsim_ros.core.types import ActorClass, IntArray
 
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -54,7 +54,7 @@ POSE_MSGTYPES = {
 }
 
 
-def _poses(items: list[Any]) -> tuple[np.ndarray, np.ndarray, bool]:
+def _poses(items: list[Msg]) -> tuple[np.ndarray, np.ndarray, bool]:
     """(N, 2) positions and (N,) headings of geometry_msgs/Pose objects, and whether they carry orientations."""
     values = np.array(
         [[p.position.x, p.position.y, *(getattr(p.orientation, axis) for axis in "xyzw")] for p in items],
@@ -64,7 +64,7 @@ def _poses(items: list[Any]) -> tuple[np.ndarray, np.ndarray, bool]:
     return values[:, :2], yaws, not without_orientation(values[:, 2:])
 
 
-def plan_poses(kind: str, msg: Any) -> Poses:
+def plan_poses(kind: str, msg: Msg) -> Poses:
     """The poses of a stack's answer of profile type ``kind`` (timed when the message carries times)."""
     if kind in ("path", "spatial_path"):
         xy, yaws, oriented = _poses([stamped.pose for stamped in msg.poses])
@@ -87,7 +87,7 @@ def plan_poses(kind: str, msg: Any) -> Poses:
     raise ValueError(f"unknown plan type {kind!r}")
 
 
-def pose_input(kind: str, odometry: Any, frame_id: str, datum: Datum | None) -> Any:
+def pose_input(kind: str, odometry: Msg, frame_id: str, datum: Datum | None) -> Msg:
     """What a stack of pose type ``kind`` reads, made from the contract's nav_msgs/Odometry (world frame)."""
     stamp = stamp_ns(odometry.header.stamp)
     frame = frame_id or odometry.header.frame_id
@@ -121,20 +121,25 @@ def pose_input(kind: str, odometry: Any, frame_id: str, datum: Datum | None) -> 
     raise ValueError(f"unknown pose type {kind!r}")
 
 
-def odometry_speed(odometry: Any) -> float:
+def odometry_speed(odometry: Msg) -> float:
     """The ego's speed in a nav_msgs/Odometry [m/s] (its twist is in the child frame)."""
     linear = odometry.twist.twist.linear
     return float(np.hypot(linear.x, linear.y))
 
 
-def odometry_xy(odometry: Any) -> np.ndarray:
+def odometry_xy(odometry: Msg) -> np.ndarray:
     """The ego's position in the odometry's frame [m]."""
     matrix = odometry_pose(odometry, "odometry")
     return np.array(matrix[:2, 3], dtype=np.float64)
 
 
 def _box(
-    actor_id: str, actor_class: ActorClass, confidence: float, size: Any, stamps_ns: Any, poses: list[Any]
+    actor_id: str,
+    actor_class: ActorClass,
+    confidence: float,
+    size: Msg,
+    stamps_ns: Sequence[int] | IntArray,
+    poses: list[Msg],
 ) -> TrackRecord:
     """A track of boxes at the poses (geometry_msgs/Pose), one per stamp; speeds and curvatures unknown (0)."""
     values = np.array(
@@ -156,19 +161,19 @@ def _box(
     )
 
 
-def _autoware_class(classifications: Any) -> ActorClass:
+def _autoware_class(classifications: Sequence[Msg]) -> ActorClass:
     if not len(classifications):
         return ActorClass.OTHER
     best = max(classifications, key=lambda item: float(item.probability))
     return AUTOWARE_CLASSES.get(int(best.label), ActorClass.OTHER)
 
 
-def _uuid(value: Any, index: int) -> str:
+def _uuid(value: Msg | None, index: int) -> str:
     digits = bytes(np.asarray(value.uuid, dtype=np.uint8)).hex() if value is not None else ""
     return digits if digits.strip("0") else f"object_{index}"
 
 
-def header_of(msg: Any) -> tuple[int, str] | None:
+def header_of(msg: Msg) -> tuple[int, str] | None:
     """(stamp [ns], frame) of an answer: its header's, a MarkerArray's first marker's; None for an empty one."""
     if hasattr(msg, "header"):
         return stamp_ns(msg.header.stamp), str(msg.header.frame_id)
@@ -176,7 +181,7 @@ def header_of(msg: Any) -> tuple[int, str] | None:
     return (stamp_ns(markers[0].header.stamp), str(markers[0].header.frame_id)) if markers else None
 
 
-def detection_tracks(kind: str, msg: Any) -> list[TrackRecord]:
+def detection_tracks(kind: str, msg: Msg) -> list[TrackRecord]:
     """The boxes of a stack's detections of profile type ``kind``, one state each at the message's stamp."""
     if kind == "actor_tracks":
         return list(track_array_from_msg(msg).tracks)
@@ -210,7 +215,7 @@ def detection_tracks(kind: str, msg: Any) -> list[TrackRecord]:
     raise ValueError(f"unknown detections type {kind!r}")
 
 
-def prediction_tracks(kind: str, msg: Any) -> list[TrackRecord]:
+def prediction_tracks(kind: str, msg: Msg) -> list[TrackRecord]:
     """The predicted tracks of a stack's predictions of profile type ``kind`` (each its own stamps).
 
     Autoware objects carry several paths with confidences: the most confident one is the prediction.
@@ -253,7 +258,7 @@ def moved(track: TrackRecord, transform: PlanarTransform) -> TrackRecord:
     )  # fmt: skip
 
 
-def on_grid(track: TrackRecord, stamps_ns: Any) -> TrackRecord:
+def on_grid(track: TrackRecord, stamps_ns: Sequence[int] | IntArray) -> TrackRecord:
     """The track's positions and headings at these stamps (held before its first and after its last)."""
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     xy, yaw, _ = interpolate_trajectory(track.stamps_ns, track.xyz[:, :2], track.yaw, stamps)
