@@ -288,7 +288,7 @@ def _attack_and_report(options: AttackOptions) -> int:
     return _exit_code(options, result.out_dir, summary)
 
 
-# summary: summary.json as attack/ builds it (a dict[str, Any] there, until attack/ is typed)
+# summary: summary.json as attack/ builds it (attack.run types it dict[str, Any]: untyped JSON until it has a record)
 def _print_outputs(out_dir: Path, summary: dict[str, Any]) -> None:
     """Where to look: only the files this run left (a run whose queries failed has no adversarial bag or report)."""
     outputs = summary.get("outputs", {})
