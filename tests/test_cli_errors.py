@@ -81,7 +81,16 @@ def test_a_multi_line_message_of_a_bug_still_gives_a_one_line_summary(
 
 
 def test_the_package_errors_are_one_family_and_scenario_errors_stay_value_errors() -> None:
-    for kind in (ScenarioError, BagError, ContractError, ResimError, ParamsError, CommandError, LaunchError):
+    for kind in (
+        ScenarioError,
+        BagError,
+        ContractError,
+        ResimError,
+        ParamsError,
+        CommandError,
+        LaunchError,
+        AttackError,
+    ):
         assert issubclass(kind, UserError), kind
     assert issubclass(ScenarioError, ValueError)  # callers that catch ValueError still catch them
     assert not issubclass(ValueError, UserError)

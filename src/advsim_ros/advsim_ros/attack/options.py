@@ -13,6 +13,7 @@ from typing import Any
 from advsim_ros import graph
 from advsim_ros.adapters.profile import ProcessProfile, StackProfile, profile_from_mapping
 from advsim_ros.contract import topics
+from advsim_ros.core.errors import UserError
 from advsim_ros.core.search.registry import accept_algorithm, renamed_sections
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag import BagConfig
@@ -24,8 +25,9 @@ STACK_TOPIC_NAMES = tuple(spec.name for spec in topics.STACK_TOPICS)
 REMAP_MODES = ("relay", "rename")
 
 
-class AttackError(RuntimeError):
-    """The attack could not run to the end; the message says why and where the logs are."""
+class AttackError(UserError, RuntimeError):
+    """The attack could not run to the end; the message says why and where the logs are (a user error: the
+    stack, the machine or the inputs; `advsim` prints it as one line)."""
 
 
 def default_params_dir() -> Path:

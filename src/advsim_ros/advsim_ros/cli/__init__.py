@@ -11,7 +11,6 @@ import traceback
 from collections.abc import Sequence
 
 from advsim_ros import __version__
-from advsim_ros.attack import AttackError
 from advsim_ros.cli.attack import add_attack_commands
 from advsim_ros.cli.campaign import add_campaign_commands
 from advsim_ros.cli.common import CommandError
@@ -73,7 +72,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as error:
         print(f"advsim {args.command}: error: {_os_error_text(error, args)}", file=sys.stderr)
         return 1
-    except (UserError, AttackError) as error:  # AttackError: attack/'s own, not a UserError subclass yet
+    except UserError as error:
         print(f"advsim {args.command}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
