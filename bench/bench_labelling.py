@@ -135,10 +135,23 @@ def _visible_truth(scenario: Scenario) -> Scenario:
 
 
 def _label_without_poses(truth: Scenario, work: Path, name: str, source: str) -> tuple[Scenario, LabelReport]:
+    """Labelled without poses; its world (the first ego pose) put onto the truth's by the first ego poses."""
     hidden = dataclasses.replace(truth, actors=())
     write_scenario_bag(hidden, work / f"{name}_in", config=NO_POSES, source=source)
     report = label_bag(work / f"{name}_in", work / f"{name}_out")
-    return read_scenario_bag(work / f"{name}_out", load_sweeps=False), report
+    labelled = read_scenario_bag(work / f"{name}_out", load_sweeps=False)
+    align = truth.ego.poses[0] @ np.linalg.inv(labelled.ego.poses[0])
+    yaw = float(np.arctan2(align[1, 0], align[0, 0]))
+    actors = tuple(
+        dataclasses.replace(
+            actor,
+            centers=actor.centers @ align[:3, :3].T + align[:3, 3],
+            yaws=np.angle(np.exp(1j * (actor.yaws + yaw))),
+        )
+        for actor in labelled.actors
+    )
+    ego = dataclasses.replace(labelled.ego, poses=align @ labelled.ego.poses)
+    return dataclasses.replace(labelled, actors=actors, ego=ego), report
 
 
 def _with_bag_poses(truth: Scenario, work: Path, name: str, region: Region | None) -> dict[str, Any]:

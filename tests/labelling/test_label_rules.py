@@ -7,11 +7,13 @@ minimum (``tracker.min_points``, ``tracker.min_small_points``); path-length rati
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from advsim_ros.core.types import ActorClass, ActorTrack
-from advsim_ros.labelling.config import GateConfig, LabellingConfig
+from advsim_ros.labelling.config import GateConfig, LabellingConfig, load_labelling_config
 from advsim_ros.labelling.detection import Candidates, concatenate, detect_sweep
 from advsim_ros.labelling.evaluation import duplicate_tracks, small_inside_vehicles
 from advsim_ros.labelling.odometry import trajectory_errors
@@ -139,3 +141,15 @@ def test_path_length_ratio_measures_the_scale_of_an_odometry() -> None:
     short[:, :3, 3] *= 0.95  # an odometry 5 % short
     assert trajectory_errors(reference, reference)["path_length_ratio"] == pytest.approx(1.0)
     assert trajectory_errors(short, reference)["path_length_ratio"] == pytest.approx(0.95)
+
+
+def test_params_file_documents_the_defaults_and_a_partial_detector_section_keeps_the_labellers(
+    tmp_path: Path,
+) -> None:
+    params = Path(__file__).resolve().parents[2] / "params" / "labelling.yaml"
+    assert load_labelling_config(params) == LabellingConfig()
+    partial = tmp_path / "labelling.yaml"
+    partial.write_text("/advsim_label:\n  ros__parameters:\n    detector:\n      min_points: 7\n", encoding="utf-8")
+    detector = load_labelling_config(partial).detector
+    assert detector.min_points == 7
+    assert detector.vehicle_length == (2.4, 18.0)  # not the stack's 7.5 m

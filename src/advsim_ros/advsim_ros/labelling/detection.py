@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advsim_ros.core.geometry import wrap_angle
-from advsim_ros.core.types import FloatArray, IntArray
+from advsim_ros.core.types import ActorClass, FloatArray, IntArray
 from advsim_ros.labelling.config import LabellingConfig
 from advsim_ros.stacks.modular.detector import CLASS_ORDER, detect
 from advsim_ros.stacks.modular.ground import split_ground
@@ -115,4 +115,4 @@ def concatenate(parts: list[Candidates]) -> Candidates:
 
 
 _FIELDS = ("frames", "boxes", "z", "heights", "classes", "confidences", "num_points", "sensor_xy")
-VEHICLE_CODE = CLASS_ORDER.index(CLASS_ORDER[0])  # CLASS_ORDER starts with the vehicle class
+VEHICLE_CODE = CLASS_ORDER.index(ActorClass.VEHICLE)
