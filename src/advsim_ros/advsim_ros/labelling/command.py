@@ -28,7 +28,7 @@ import numpy as np
 from advsim_ros.core.types import EgoTrajectory, FloatArray, Scenario, ScenarioError, Sweep
 from advsim_ros.io.bag import BagConfig, iter_bag_sweeps, read_scenario_bag, summarize_bag, write_scenario_bag
 from advsim_ros.labelling.config import LabellingConfig, load_labelling_config
-from advsim_ros.labelling.odometry import OdometryConfig, ego_poses_from_sensor, lidar_odometry
+from advsim_ros.labelling.odometry import OdometryConfig, ego_poses_from_sensor, lidar_odometry, trajectory_errors
 from advsim_ros.labelling.perception import read_bag_static_transforms, tracks_from_topic
 from advsim_ros.labelling.pipeline import LabellingResult, label_sweeps
 
@@ -155,8 +155,14 @@ def label_bag(
     bag_config: BagConfig | None = None,
     odometry: OdometryConfig | None = None,
     overwrite: bool = False,
+    check_odometry: bool = False,
 ) -> LabelReport:
-    """Label ``bag`` and write the scenario bag ``output`` (and ``output``.labels.json beside it)."""
+    """Label ``bag`` and write the scenario bag ``output`` (and ``output``.labels.json beside it).
+
+    ``check_odometry``: a bag with its own poses also gets KISS-ICP's, and the summary's
+    ``odometry_check`` compares the two (path length ratio, translation errors): how far KISS-ICP's
+    scale can be trusted on this sensor before labelling a bag without poses.
+    """
     started = time.perf_counter()
     bag, output = Path(bag), Path(output)
     config = bag_config or BagConfig()
@@ -187,6 +193,8 @@ def label_bag(
         rows = _track_rows(result)
         summary = result.summary()
         described = "auto-labelled from the LiDAR"
+    if check_odometry and own_poses:
+        summary["odometry_check"] = odometry_check(scenario, odometry or OdometryConfig())
     poses = "bag" if own_poses else "kiss-icp"
     source = f"labelled/{bag.name}: actor tracks {described}" + (
         "" if own_poses else "; ego poses from KISS-ICP LiDAR odometry"
@@ -208,6 +216,14 @@ def label_bag(
         summary=summary,
         seconds=time.perf_counter() - started,
     )
+
+
+def odometry_check(scenario: Scenario, config: OdometryConfig, tolerance: float = 0.02) -> dict[str, Any]:
+    """KISS-ICP on the scenario's sweeps against its own sensor poses: path length ratio and errors."""
+    estimate = lidar_odometry((sweep.xyz for sweep in scenario.sweeps), config)
+    logged = np.stack([sweep.sensor_pose for sweep in scenario.sweeps])
+    errors = trajectory_errors(estimate, logged)
+    return errors | {"scale_within_tolerance": bool(abs(errors["path_length_ratio"] - 1.0) <= tolerance)}
 
 
 def _sweeps_by_frame(scenario: Scenario) -> Iterator[tuple[int, FloatArray]]:

@@ -33,6 +33,8 @@ class OfflineTrackerConfig:
     initial_speed_noise: float = 6.0  # standard deviation of a new track's velocity [m/s]
     link_gap: int = 10  # fragments of one object up to this many sweeps apart are joined [sweeps]
     link_distance: float = 2.0  # ... when each one's smoothed motion reaches the other within this [m]
+    min_points: int = 15  # a vehicle candidate with fewer returns is never tracked: no track starts from it [1]
+    min_small_points: int = 10  # the same for pedestrian and cyclist candidates [1]
 
     def __post_init__(self) -> None:
         _positive(
@@ -46,6 +48,8 @@ class OfflineTrackerConfig:
         )
         if self.max_misses < 0 or self.link_gap < 0:
             raise ScenarioError("labelling tracker max_misses, link_gap: must be >= 0")
+        if self.min_points < 1 or self.min_small_points < 1:
+            raise ScenarioError("labelling tracker min_points, min_small_points: must be >= 1")
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,9 @@ class GateConfig:
     min_class_share: float = 0.6  # share of its detections that agree with the track's class
     min_confidence: float = 0.12  # the track's confidence (see refine.track_confidence)
     vehicle_height: tuple[float, ...] = (1.3, 2.4)  # a vehicle track's top above the ground (hedges, walls: taller) [m]
+    long_vehicle_length: float = 7.0  # vehicle tracks at least this long are trucks, buses, tankers ... [m]
+    long_vehicle_height: float = 4.3  # ... whose top may reach this high [m]
+    long_vehicle_width: float = 2.2  # ... and who are at least this wide (walls, fences, hedges seen side-on: thin) [m]
     max_static_spread: float = 0.7  # median distance of a static track's detections from their median centre [m]
     static_speed: float = 0.8  # tracks whose smoothed speed stays below this are static [m/s]
     static_displacement: float = 1.5  # ... and whose net displacement is below this [m]
@@ -80,6 +87,9 @@ class GateConfig:
             static_speed=self.static_speed,
             static_displacement=self.static_displacement,
             max_heading_misalignment_deg=self.max_heading_misalignment_deg,
+            long_vehicle_length=self.long_vehicle_length,
+            long_vehicle_height=self.long_vehicle_height,
+            long_vehicle_width=self.long_vehicle_width,
         )
         if self.inside_margin < 0.0:
             raise ScenarioError(f"labelling gates inside_margin: must be >= 0, got {self.inside_margin}")
@@ -90,18 +100,28 @@ class GateConfig:
             raise ScenarioError(f"labelling gates classes: expected a non-empty subset of {sorted(known)}")
 
 
+LABELLING_DETECTOR = DetectorConfig(
+    vehicle_prior=(3.9, 1.65),
+    vehicle_length=(2.4, 18.0),
+    vehicle_width=(1.3, 3.0),  # a 2.55 m truck measures up to 2.95 m on the 0.2 m grid
+    vehicle_height=(1.1, 4.3),
+    max_footprint=19.0,
+)
+
+
 @dataclass(frozen=True)
 class LabellingConfig:
     """Everything the auto-labeller reads; the detector and ground sections are the reference stack's."""
 
     ground: GroundConfig = field(default_factory=GroundConfig)
-    # The reference detector with a smaller car prior: KITTI's and European cars average ~3.9 x 1.65 m;
-    # a track's own detections then make its box longer when they show more.
-    detector: DetectorConfig = field(default_factory=lambda: DetectorConfig(vehicle_prior=(3.9, 1.65)))
+    # The reference detector with a smaller car prior (KITTI's and European cars average ~3.9 x 1.65 m; a
+    # track's own detections then make its box longer when they show more), and vehicles up to 18 m long and
+    # 4.3 m tall (trucks, buses, tankers: one cluster, one track) where the stack stops at 7.5 m and 3.2 m.
+    detector: DetectorConfig = field(default_factory=lambda: LABELLING_DETECTOR)
     tracker: OfflineTrackerConfig = field(default_factory=OfflineTrackerConfig)
     gates: GateConfig = field(default_factory=GateConfig)
     vehicle_size_quantile: float = 0.8  # a vehicle's length and width: this quantile of its detected extents [1]
-    max_vehicle_size: tuple[float, ...] = (7.5, 2.8)  # length, width a vehicle track is clipped to [m]
+    max_vehicle_size: tuple[float, ...] = (18.0, 2.8)  # length, width a vehicle track is clipped to [m]
 
     def __post_init__(self) -> None:
         if not 0.0 < self.vehicle_size_quantile <= 1.0:
@@ -121,5 +141,10 @@ def load_labelling_config(path: Path) -> LabellingConfig:
         for name, kind in _SECTIONS.items()
         if name in parameters
     }
+    if "detector" in sections:  # keys left out keep the labeller's detector defaults, not the stack's
+        given = load_node_params(Path(path), LABELLING_NODE)["detector"]
+        sections["detector"] = dataclasses.replace(
+            LABELLING_DETECTOR, **{key: getattr(sections["detector"], key) for key in given}
+        )
     top = config_from_mapping(LabellingConfig, parameters, f"{path}")
     return dataclasses.replace(top, **sections)

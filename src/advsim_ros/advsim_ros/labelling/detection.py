@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advsim_ros.core.geometry import wrap_angle
-from advsim_ros.core.types import FloatArray, IntArray
+from advsim_ros.core.types import ActorClass, FloatArray, IntArray
 from advsim_ros.labelling.config import LabellingConfig
 from advsim_ros.stacks.modular.detector import CLASS_ORDER, detect
 from advsim_ros.stacks.modular.ground import split_ground
@@ -29,7 +29,7 @@ class Candidates:
     frames: IntArray  # (K,) frame index of each box
     boxes: FloatArray  # (K, 5) x, y [m], yaw [rad], length, width [m]
     z: FloatArray  # (K,) box centre height [m]
-    heights: FloatArray  # (K,) box height [m]
+    heights: FloatArray  # (K,) box height (long vehicles: the top of every return over the footprint) [m]
     classes: IntArray  # (K,) index into stacks.modular.detector.CLASS_ORDER
     confidences: FloatArray  # (K,) detector score in [0, 1]
     num_points: IntArray  # (K,) returns in the cluster
@@ -51,6 +51,25 @@ def _rigid_apply(transform: FloatArray, xyz: FloatArray) -> FloatArray:
     return result
 
 
+def _full_tops(xyz_ego: FloatArray, boxes: FloatArray, ground_z: FloatArray) -> FloatArray:
+    """(K,) the 0.98 quantile of the height above ground of every return over each box's footprint [m].
+
+    The ground split ignores returns more than ``max_object_height`` (3 m) above the ground (canopy,
+    signs), so a long cluster's top says 3 m whether it is a 4 m truck or a 10 m facade; over its
+    footprint, a facade, a tree or a hedge row under trees reaches higher than any road vehicle.
+    """
+    tops = np.zeros(boxes.shape[0])
+    for index, (x, y, yaw, length, width) in enumerate(boxes.tolist()):
+        near = np.abs(xyz_ego[:, 0] - x) + np.abs(xyz_ego[:, 1] - y) <= 0.75 * (length + width)
+        local = xyz_ego[near, :2] - (x, y)
+        cos, sin = np.cos(yaw), np.sin(yaw)
+        along, across = local[:, 0] * cos + local[:, 1] * sin, -local[:, 0] * sin + local[:, 1] * cos
+        inside = (np.abs(along) <= 0.5 * length) & (np.abs(across) <= 0.5 * width)
+        above = xyz_ego[near, 2][inside] - ground_z[index]
+        tops[index] = float(np.quantile(above, 0.98)) if above.size else 0.0
+    return tops
+
+
 def detect_sweep(
     xyz_sensor: FloatArray, world_T_ego: FloatArray, ego_T_sensor: FloatArray, frame: int, config: LabellingConfig
 ) -> Candidates:
@@ -63,13 +82,23 @@ def detect_sweep(
     ego_yaw = float(np.arctan2(world_T_ego[1, 0], world_T_ego[0, 0]))
     boxes = np.column_stack([centres, wrap_angle(found.boxes[:, 2] + ego_yaw), found.boxes[:, 3:5]])
     sensor_xy = (world_T_ego @ ego_T_sensor)[:2, 3]
+    # The detector scores a vehicle by how close its top is to a car's (~1.5 m): a truck, bus or tanker
+    # would score ~0; a long vehicle is scored by its returns only, as the detector scores other classes.
+    long = (found.classes == VEHICLE_CODE) & (found.boxes[:, 3] >= config.gates.long_vehicle_length)
+    confidences = np.where(
+        long, found.num_points / (found.num_points + config.detector.confidence_points), found.confidences
+    )
+    heights = found.heights.copy()
+    if np.any(long):
+        ground_z = found.z[long] - 0.5 * found.heights[long]
+        heights[long] = _full_tops(xyz_ego.astype(np.float64), found.boxes[long], ground_z)
     return Candidates(
         frames=np.full(found.count, frame, dtype=np.int64),
         boxes=boxes.reshape(-1, 5),
         z=found.z + world_T_ego[2, 3],
-        heights=found.heights,
+        heights=heights,
         classes=found.classes,
-        confidences=found.confidences,
+        confidences=confidences,
         num_points=found.num_points,
         sensor_xy=np.tile(sensor_xy, (found.count, 1)),
     )
@@ -86,4 +115,4 @@ def concatenate(parts: list[Candidates]) -> Candidates:
 
 
 _FIELDS = ("frames", "boxes", "z", "heights", "classes", "confidences", "num_points", "sensor_xy")
-VEHICLE_CODE = CLASS_ORDER.index(CLASS_ORDER[0])  # CLASS_ORDER starts with the vehicle class
+VEHICLE_CODE = CLASS_ORDER.index(ActorClass.VEHICLE)

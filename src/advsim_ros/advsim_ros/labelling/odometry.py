@@ -88,7 +88,8 @@ def mount_from_string(text: str) -> FloatArray:
 def trajectory_errors(estimate: FloatArray, reference: FloatArray, segment: float = 50.0) -> dict[str, float]:
     """Translation errors of poses (F, 4, 4) against reference poses (F, 4, 4), both starting at the same frame.
 
-    mean / max translation error [m] after aligning the first poses; drift per 100 m [m]: the
+    path length ratio: the estimate's path length over the reference's (1: the same scale; both summed
+    over consecutive poses); mean / max translation error [m] after aligning the first poses; drift per 100 m [m]: the
     KITTI odometry metric's translation part (Geiger et al. 2012) over every sub-trajectory
     of ``segment`` metres of the reference path, as metres of end-point error per 100 m.
     """
@@ -106,7 +107,10 @@ def trajectory_errors(estimate: FloatArray, reference: FloatArray, segment: floa
         relative_estimate = np.linalg.inv(estimate[first]) @ estimate[last]
         delta = np.linalg.inv(relative_reference) @ relative_estimate
         drifts.append(float(np.linalg.norm(delta[:3, 3])) / (distance[last] - distance[first]) * 100.0)
+    estimate_length = float(np.sum(np.linalg.norm(np.diff(estimate[:, :3, 3], axis=0), axis=1)))
     return {
+        "path_length_ratio": estimate_length / max(float(distance[-1]), 1e-9),
+        "estimate_path_length_m": estimate_length,
         "mean_translation_error_m": float(error.mean()),
         "max_translation_error_m": float(error.max()),
         "path_length_m": float(distance[-1]),

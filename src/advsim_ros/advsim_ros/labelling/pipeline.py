@@ -11,14 +11,14 @@ import numpy as np
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray, ScenarioError
 from advsim_ros.labelling.config import LabellingConfig
 from advsim_ros.labelling.detection import Candidates, concatenate, detect_sweep
-from advsim_ros.labelling.overlaps import gate_overlaps
+from advsim_ros.labelling.overlaps import gate_overlaps, merge_duplicates
 from advsim_ros.labelling.refine import LabelledTrack, refine_track
 from advsim_ros.labelling.tracking import associate_forwards, link_fragments
 from advsim_ros.stacks.modular.detector import CLASS_ORDER
 
-_TRACKED_GROUPS = (  # tracked apart: (classes, gate attribute of the tracker config)
-    ((ActorClass.VEHICLE,), "gate"),
-    ((ActorClass.PEDESTRIAN, ActorClass.CYCLIST), "small_gate"),
+_TRACKED_GROUPS = (  # tracked apart: (classes, gate and fewest returns: attributes of the tracker config)
+    ((ActorClass.VEHICLE,), "gate", "min_points"),
+    ((ActorClass.PEDESTRIAN, ActorClass.CYCLIST), "small_gate", "min_small_points"),
 )
 
 
@@ -57,9 +57,15 @@ def label_candidates(
     times_s = (frame_stamps_ns - frame_stamps_ns[0]) * 1e-9
     ego_yaws = np.arctan2(ego_poses[:, 1, 0], ego_poses[:, 0, 0])
     labelled: list[LabelledTrack] = []
-    for group, gate_name in _TRACKED_GROUPS:
+
+    def refine(rows: IntArray) -> LabelledTrack:
+        return refine_track("pending", rows, candidates, frame_stamps_ns, times_s, ego_yaws, config)
+
+    for group, gate_name, points_name in _TRACKED_GROUPS:
         codes = [CLASS_ORDER.index(actor_class) for actor_class in group]
-        rows = np.flatnonzero(np.isin(candidates.classes, codes))
+        # Candidates with too few returns take no part: no track is started or continued from them.
+        enough = candidates.num_points >= int(getattr(config.tracker, points_name))
+        rows = np.flatnonzero(np.isin(candidates.classes, codes) & enough)
         if rows.shape[0] == 0:
             continue
         part = candidates.take(rows)
@@ -68,9 +74,9 @@ def label_candidates(
         tracks = associate_forwards(part.frames, xy, times_s, gate, config.tracker)
         tracks = link_fragments(tracks, part.frames, xy, times_s, config.tracker)
         for track_rows in sorted(tracks, key=lambda track: (int(part.frames[track[0]]), int(track[0]))):
-            labelled.append(refine_track("pending", track_rows, part, frame_stamps_ns, times_s, ego_yaws, config))
+            labelled.append(refine(rows[track_rows]))
     labelled.sort(key=lambda item: (int(item.track.stamps_ns[0]), item.track.actor_class.value))
-    labelled = gate_overlaps(labelled, config.gates)
+    labelled = gate_overlaps(merge_duplicates(labelled, candidates, refine, config.gates), config.gates)
     numbered = []
     for index, item in enumerate(labelled, start=1):
         track = item.track

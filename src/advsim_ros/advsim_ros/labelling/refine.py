@@ -6,7 +6,8 @@
   track gets one pose for its whole span (the median of its detections, robust to the
   partial views of a parked car as the ego drives by); a moving one the smoothed path.
 - Size: for vehicles a high quantile of the detected extents (a box fitted to a partial
-  view is too short, never too long), clipped; height likewise; median for the others.
+  view is too short, never too long), clipped (18 m: trucks, buses, tankers are one track);
+  height likewise (long vehicles may be taller); median for the others.
 - Heading: from the motion where the track moves, otherwise from the shape (the axial
   mean of the detected box headings, weighted by their points), pointed the way the ego
   drives (parked cars mostly face the traffic of their side; the ambiguity does not
@@ -17,7 +18,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,6 +43,7 @@ class LabelledTrack:
     rejected: tuple[str, ...]  # names of the failed gates
     height: float  # top above the ground [m]
     static_spread: float  # static tracks: median distance of the detections from their centre [m]
+    rows: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))  # its candidates (pipeline's numbering)
 
     @property
     def accepted(self) -> bool:
@@ -140,8 +142,12 @@ def refine_track(
     if actor_class in (ActorClass.PEDESTRIAN, ActorClass.CYCLIST) and static and gates.small_must_move:
         rejected.append("small_must_move")
     if actor_class is ActorClass.VEHICLE:
-        if not gates.vehicle_height[0] <= height <= gates.vehicle_height[1]:
+        long = length >= gates.long_vehicle_length
+        top = gates.long_vehicle_height if long else gates.vehicle_height[1]
+        if not gates.vehicle_height[0] <= height <= top:
             rejected.append("vehicle_height")
+        if long and width < gates.long_vehicle_width:
+            rejected.append("long_vehicle_width")
         if static and spread > gates.max_static_spread:
             rejected.append("max_static_spread")
         if not static:
@@ -167,4 +173,5 @@ def refine_track(
         rejected=tuple(rejected),
         height=height,
         static_spread=spread,
+        rows=np.asarray(rows, dtype=np.int64),
     )

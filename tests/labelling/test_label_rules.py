@@ -1,0 +1,155 @@
+"""The rules that make auto-labels attackable (issue 33), each on a small made-up input whose answer is known.
+
+No pedestrian inside a vehicle's box; two tracks of one object merged into one; a truck or a tanker up
+to 18 m labelled as one vehicle; no track from candidates with fewer returns than the documented
+minimum (``tracker.min_points``, ``tracker.min_small_points``); path-length ratio of an odometry.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from advsim_ros.core.types import ActorClass, ActorTrack
+from advsim_ros.labelling.config import GateConfig, LabellingConfig, load_labelling_config
+from advsim_ros.labelling.detection import Candidates, concatenate, detect_sweep
+from advsim_ros.labelling.evaluation import duplicate_tracks, small_inside_vehicles
+from advsim_ros.labelling.odometry import trajectory_errors
+from advsim_ros.labelling.overlaps import gate_overlaps
+from advsim_ros.labelling.pipeline import LabellingResult, label_candidates
+from advsim_ros.labelling.refine import LabelledTrack
+from advsim_ros.stacks.modular.detector import CLASS_ORDER
+
+FRAMES = 40
+STAMPS = np.arange(FRAMES, dtype=np.int64) * 100_000_000 + 1_000_000_000
+POSES = np.tile(np.eye(4), (FRAMES, 1, 1))  # the ego stands at the world origin
+
+
+def _candidates(
+    actor_class: ActorClass, frames: list[int], xy: np.ndarray, size: tuple[float, float], points: int
+) -> Candidates:
+    count = len(frames)
+    height = 1.6 if actor_class is ActorClass.VEHICLE else 1.7
+    return Candidates(
+        frames=np.asarray(frames, dtype=np.int64),
+        boxes=np.column_stack([xy, np.zeros(count), np.full(count, size[0]), np.full(count, size[1])]),
+        z=np.full(count, height / 2),
+        heights=np.full(count, height),
+        classes=np.full(count, CLASS_ORDER.index(actor_class), dtype=np.int64),
+        confidences=np.full(count, points / (points + 60.0)),
+        num_points=np.full(count, points, dtype=np.int64),
+        sensor_xy=np.zeros((count, 2)),
+    )
+
+
+def _label(*parts: Candidates) -> LabellingResult:
+    return label_candidates(concatenate(list(parts)), STAMPS, POSES, LabellingConfig())
+
+
+def _accepted(result: LabellingResult, actor_class: ActorClass) -> list[ActorTrack]:
+    return [actor for actor in result.actors if actor.actor_class is actor_class]
+
+
+@pytest.mark.parametrize(("points", "tracks"), [(9, 0), (10, 1)])
+def test_no_track_is_built_from_candidates_with_fewer_returns_than_the_minimum(points: int, tracks: int) -> None:
+    """A walker's candidates score above the confidence gate at 9 returns too: only min_small_points stops them."""
+    frames = list(range(FRAMES))
+    walk = np.column_stack([8.0 + 0.14 * np.arange(FRAMES), np.full(FRAMES, 4.0)])  # 1.4 m/s
+    result = _label(_candidates(ActorClass.PEDESTRIAN, frames, walk, (0.6, 0.6), points))
+    assert LabellingConfig().tracker.min_small_points == 10
+    assert len(result.tracks) == tracks  # not even a rejected track
+    assert len(_accepted(result, ActorClass.PEDESTRIAN)) == tracks
+
+
+def test_two_tracks_of_one_car_that_overlap_for_a_while_are_merged_into_one() -> None:
+    """The detector boxes one car twice at frames 12-19, then only 1 m further ahead: two tracks, one object."""
+    path = np.column_stack([5.0 + 0.5 * np.arange(FRAMES), np.full(FRAMES, 6.0)])  # 5 m/s along x
+    early = list(range(20))
+    late = list(range(12, FRAMES))
+    first = _candidates(ActorClass.VEHICLE, early, path[early], (4.2, 1.8), 200)
+    second = _candidates(ActorClass.VEHICLE, late, path[late] + [1.0, 0.0], (4.2, 1.8), 120)
+    result = _label(first, second)
+    assert len(result.tracks) == 2  # the tracker made two; each alone passes every gate
+    vehicles = _accepted(result, ActorClass.VEHICLE)
+    assert len(vehicles) == 1
+    assert vehicles[0].stamps_ns.tolist() == STAMPS.tolist()  # the merged track spans both
+    assert [item.rejected for item in result.tracks if not item.accepted] == [("duplicate",)]
+    assert duplicate_tracks(result.actors) == 0
+
+
+def _track(name: str, actor_class: ActorClass, xy: np.ndarray, size: tuple[float, float]) -> LabelledTrack:
+    count = xy.shape[0]
+    centers = np.column_stack([xy, np.full(count, 0.8)])
+    track = ActorTrack(name, actor_class, np.array([*size, 1.6]), STAMPS[:count], centers, np.zeros(count))
+    return LabelledTrack(track, 0.5, False, count, count, 1.0, (), 1.6, 0.1)
+
+
+@pytest.mark.parametrize(("inside", "kept_frames"), [(5, 15), (15, None)])
+def test_a_pedestrian_never_stays_inside_a_vehicle_box(inside: int, kept_frames: int | None) -> None:
+    """A "pedestrian" whose last frames lie in a parked van: cut to the frames outside, or dropped if too few."""
+    van = _track("van", ActorClass.VEHICLE, np.tile([10.0, 0.0], (20, 1)), (5.5, 2.1))
+    walk = np.column_stack([np.full(20, 10.0), np.linspace(5.0, 2.5, 20)])  # towards the van's side
+    walk[20 - inside :] = [10.0, 0.4]  # then inside it
+    walker = _track("walker", ActorClass.PEDESTRIAN, walk, (0.6, 0.6))
+    before = [item.track for item in (van, walker)]
+    assert small_inside_vehicles(before) == 1
+    gated = {item.track.actor_id: item for item in gate_overlaps([van, walker], GateConfig())}
+    assert gated["van"].accepted
+    if kept_frames is None:
+        assert gated["walker"].rejected == ("inside_vehicle",)
+    else:
+        assert gated["walker"].accepted
+        assert gated["walker"].track.stamps_ns.shape[0] == kept_frames
+    assert small_inside_vehicles([item.track for item in gated.values() if item.accepted]) == 0
+
+
+def _box_surface(centre: tuple[float, float], size: tuple[float, float, float], step: float = 0.1) -> np.ndarray:
+    """Returns of a parked box's two faces that a sensor at the origin sees (its -y side and its -x end) [m]."""
+    x0, y0 = centre[0] - size[0] / 2, centre[1] + size[1] / 2
+    z = np.arange(0.5, size[2], step)
+    along = np.arange(0.0, size[0], step)
+    across = np.arange(0.0, size[1], step)
+    side = np.array([[x0 + a, centre[1] - size[1] / 2, h] for a in along for h in z])
+    end = np.array([[x0, y0 - c, h] for c in across for h in z])
+    return np.vstack([side, end])
+
+
+@pytest.mark.parametrize("length", [12.0, 17.5])
+def test_a_truck_or_tanker_up_to_18_m_is_labelled_as_one_vehicle(length: float) -> None:
+    """Sweeps of a parked 2.5 m wide, 3.5 m tall box of that length beside the ego: one vehicle of its length."""
+    config = LabellingConfig()
+    ground = np.array([[x, y, 0.0] for x in np.arange(-30.0, 40.0, 0.4) for y in np.arange(-20.0, 20.0, 0.4)])
+    truck = _box_surface((8.0 + length / 2, 6.0), (length, 2.5, 3.5))
+    sensor = np.eye(4)
+    sensor[2, 3] = 1.7  # the LiDAR 1.7 m above the ground
+    points = np.vstack([ground, truck]) - [0.0, 0.0, 1.7]
+    parts = [detect_sweep(points, POSES[frame], sensor, frame, config) for frame in range(10)]
+    result = label_candidates(concatenate(parts), STAMPS[:10], POSES[:10], config)
+    vehicles = _accepted(result, ActorClass.VEHICLE)
+    assert len(vehicles) == 1
+    assert vehicles[0].length == pytest.approx(length, abs=0.4)
+    assert vehicles[0].centers[0, :2] == pytest.approx([8.0 + length / 2, 6.0], abs=0.3)
+
+
+def test_path_length_ratio_measures_the_scale_of_an_odometry() -> None:
+    reference = np.tile(np.eye(4), (30, 1, 1))
+    reference[:, 0, 3] = 0.5 * np.arange(30)
+    reference[:, 1, 3] = 0.02 * np.arange(30) ** 2
+    short = reference.copy()
+    short[:, :3, 3] *= 0.95  # an odometry 5 % short
+    assert trajectory_errors(reference, reference)["path_length_ratio"] == pytest.approx(1.0)
+    assert trajectory_errors(short, reference)["path_length_ratio"] == pytest.approx(0.95)
+
+
+def test_params_file_documents_the_defaults_and_a_partial_detector_section_keeps_the_labellers(
+    tmp_path: Path,
+) -> None:
+    params = Path(__file__).resolve().parents[2] / "params" / "labelling.yaml"
+    assert load_labelling_config(params) == LabellingConfig()
+    partial = tmp_path / "labelling.yaml"
+    partial.write_text("/advsim_label:\n  ros__parameters:\n    detector:\n      min_points: 7\n", encoding="utf-8")
+    detector = load_labelling_config(partial).detector
+    assert detector.min_points == 7
+    assert detector.vehicle_length == (2.4, 18.0)  # not the stack's 7.5 m
