@@ -46,6 +46,11 @@ def test_files_and_folders_go_in_and_come_back_byte_for_byte(storage: Storage, t
     size = sum(p.stat().st_size for p in bag.rglob("*") if p.is_file())
     assert storage.sent == size  # what this process moved, counted
     assert storage.received == 2 * size - (bag / "data" / "log_0.mcap").stat().st_size
+    storage.remove("attacks/k/adversarial/data")
+    assert storage.files("attacks/k") == ["adversarial/metadata.yaml"]
+    storage.remove("attacks/k")
+    assert not storage.exists("attacks/k")
+    storage.remove("attacks/k")  # nothing there: nothing to do
 
 
 def test_a_result_marker_is_never_read_half_written(storage: Storage) -> None:

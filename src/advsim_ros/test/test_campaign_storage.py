@@ -15,6 +15,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -38,9 +39,12 @@ def _rows(path: Path, key: str) -> dict[str, dict[str, str]]:
 
 def _campaign(config: Path, out: Path, env: dict[str, str], *extra: str) -> subprocess.CompletedProcess[str]:
     argv = [sys.executable, "-m", "advsim_ros.cli", "campaign", str(config), "-o", str(out), "--workers", "2"]
-    return subprocess.run(
+    started = time.monotonic()
+    result = subprocess.run(
         [*argv, *extra], capture_output=True, text=True, timeout=900, check=False, env={**os.environ, **env}
     )
+    print(f"campaign {out.name}: {time.monotonic() - started:.1f} s")
+    return result
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +57,7 @@ def campaigns(tmp_path_factory: pytest.TempPathFactory, s3_server: dict[str, str
     values = {
         "scenarios": [{"bag": "log", "windows": {"starts": [0]}}],
         "stacks": ["reference", {"name": "example", "command": example, "params": ["example.yaml"]}],
-        "algorithms": {"random": 2},
+        "algorithms": {"random": 1},
         "reruns": 0,
         "transfer": True,
         "failure": {"collision": True, "adversarial_loss_above": 0.0},  # every scored attack: both replayed

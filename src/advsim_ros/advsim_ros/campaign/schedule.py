@@ -186,7 +186,7 @@ def run_campaign(
         raise CampaignError(f"--workers: must be at least 1, got {workers}")
     out_dir = out_dir.resolve()
     shipped = Storage(uri) if uri is not None else None
-    if shipped is not None and shipped.local_root == out_dir:
+    if shipped is not None and shipped.local_root is not None and shipped.local_root.resolve() == out_dir:
         shipped = None  # OUTDIR itself: every job works in its folder there, as on one machine
     if (out_dir / JOURNAL_NAME).exists():  # another campaign's folder is refused before anything is written
         CampaignJournal.open(out_dir, campaign.digest, campaign.path)

@@ -12,7 +12,7 @@ every output it wrote goes to the storage, job_result.json last. Back on the dri
 the regression suite are built from there as on one machine.
 
 A job that failed is run anew from its inputs (its attack's journal is not resumed from the
-storage yet); its log goes on in the storage's job.log.
+storage yet): its outputs replace those of the try before, whose log goes on in job.log.
 """
 
 from __future__ import annotations
@@ -87,6 +87,7 @@ def run_shipped_job(spec: dict[str, Any]) -> dict[str, Any]:
         fetched, fetch_s = storage.received, time.monotonic() - started
         outcome = run_job(local)
         started = time.monotonic()
+        storage.remove(relative)  # what an earlier try left there (its log goes on in this one's)
         storage.put_tree(out_dir, relative, skip=(RESULT_NAME,))
         if outcome["ok"]:
             outcome.pop("ok")

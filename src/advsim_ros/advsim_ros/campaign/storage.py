@@ -124,6 +124,11 @@ class Storage:
         found = self.fs.find(path) if self.fs.exists(path) else []
         return sorted(str(p)[len(prefix) :] for p in found if str(p).startswith(prefix))
 
+    def remove(self, key: str) -> None:
+        """Remove what is stored under key (a file, or a folder and all it holds); nothing when nothing is."""
+        if self.exists(key):
+            self.fs.rm(self._path(key), recursive=True)
+
     def put_tree(self, source: Path, key: str, skip: Iterable[str] = ()) -> None:
         """Upload a file, or every file of a folder under key (but those named in skip, relative to source)."""
         left_out = set(skip)
