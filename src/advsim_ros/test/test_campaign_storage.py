@@ -1,7 +1,8 @@
 """A campaign whose jobs meet in a storage, not in OUTDIR: an S3-compatible server (moto's, on loopback).
 
 The same campaign (2 attacks, their found scenarios replayed on the other stack, a stack parameter
-file from the config's folder) runs once as on one machine (OUTDIR itself the storage) and once with
+file from the config's folder) runs once as on one machine (OUTDIR itself the storage, the default,
+here named by --storage file://) and once with
 ``--storage s3://...``: the jobs get the bag and the parameter file from the storage (into the node's
 cache), run in a scratch folder and send their outputs back; the driver builds the journal, report
 and suite from what it downloaded. Both must report the same figures. A third driver with a fresh
@@ -69,7 +70,9 @@ def campaigns(tmp_path_factory: pytest.TempPathFactory, s3_server: dict[str, str
 
     fsspec.filesystem("s3").mkdir("campaigns")
     uri = "s3://campaigns/storage-test"
-    here = _campaign(config, base / "here", {})
+    (base / "here").mkdir()
+    (base / "link").symlink_to(base / "here")  # OUTDIR named as the storage, through a link: still OUTDIR itself
+    here = _campaign(config, base / "here", {}, "--storage", (base / "link").as_uri())
     assert here.returncode == 0, here.stderr[-3000:]
     shipped = _campaign(config, base / "shipped", s3_server, "--storage", uri)
     assert shipped.returncode == 0, shipped.stderr[-3000:]
@@ -96,6 +99,9 @@ def test_a_campaign_through_s3_reports_what_it_reports_on_one_machine(campaigns:
     for scenario in here_index["scenarios"]:
         assert (shipped / "suite" / scenario["bag"] / "metadata.yaml").is_file()
     assert "Table 1" in (shipped / "report.md").read_text()
+    for key in rows:  # OUTDIR as the storage: each job ran in its folder there, as before there were storages
+        assert json.loads((here / "attacks" / key / "job.json").read_text())["out_dir"] == str(here / "attacks" / key)
+    assert not (here / "inputs").exists()
 
 
 @pytest.mark.slow
