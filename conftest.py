@@ -6,9 +6,11 @@ Tests that need the data skip with a message naming the missing folder when it i
 from __future__ import annotations
 
 import dataclasses
+import logging
+import os
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -121,3 +123,44 @@ class RecordedYourWay:
 def recorded_your_way() -> RecordedYourWay:
     """Writes scenarios as a user records drives, in a layout of its own (see RecordedYourWay)."""
     return RecordedYourWay()
+
+
+@pytest.fixture(scope="session")
+def s3_server() -> Iterator[dict[str, str]]:
+    """An S3-compatible server (moto's) on a free loopback port, for as long as the session runs: the environment
+    that points a process's S3 clients at it (endpoint, dummy credentials), also set in this process."""
+    from moto.server import ThreadedMotoServer
+
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # one line per request otherwise
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    environment = {
+        "AWS_ENDPOINT_URL": f"http://{host}:{port}",
+        "AWS_ACCESS_KEY_ID": "testing",
+        "AWS_SECRET_ACCESS_KEY": "testing",
+        "AWS_DEFAULT_REGION": "us-east-1",
+    }
+    before = {name: os.environ.get(name) for name in environment}
+    os.environ.update(environment)
+    try:
+        yield environment
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        server.stop()
+
+
+@pytest.fixture
+def s3_bucket(s3_server: dict[str, str], request: pytest.FixtureRequest) -> str:
+    """A fresh bucket on the test's S3 server: its s3:// URI."""
+    import fsspec
+
+    name = "t-" + "".join(c if c.isalnum() else "-" for c in request.node.name.lower())[:50].strip("-")
+    fs = fsspec.filesystem("s3", skip_instance_cache=True)
+    if not fs.exists(name):
+        fs.mkdir(name)
+    return f"s3://{name}"

@@ -51,7 +51,7 @@ from advsim_ros.io.bag import BagConfig, bag_layout_json, bag_layout_of, load_ba
 
 TOP_KEYS = (
     "scenarios", "stacks", "algorithms", "actors", "objectives", "seeds", "loops", "reactive_actors", "reruns",
-    "transfer", "failure", "parameters", "plan_timeout",
+    "transfer", "failure", "parameters", "plan_timeout", "storage",
 )  # fmt: skip
 SCENARIO_KEYS = ("bag", "bags", "synthetic", "windows", "bag_params")
 STACK_KEYS = ("name", "command", "remap", "remap_mode", "params")

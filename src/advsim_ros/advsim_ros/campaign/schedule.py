@@ -5,7 +5,9 @@ given. Each job is a Ray task that declares the CPU and memory it needs and runs
 process of its own (campaign.worker); at most ``workers`` jobs are in flight at once. After an
 attack whose adversarial scenario counts as a failure, its scenario is replayed on every other
 stack of the campaign (transfer, Table 3). Finished jobs go to the campaign journal at once, so
-a killed driver loses nothing finished; the same command resumes.
+a killed driver loses nothing finished; the same command resumes. With a storage other than OUTDIR
+(``storage:``, ``--storage``), a job's inputs and outputs travel through it (campaign.shipping), so that
+no node needs to see the driver's folders.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +28,8 @@ from advsim_ros.attack.run import search_notes
 from advsim_ros.campaign.config import AttackPlan, Campaign, CampaignError, expand, load_campaign, materialize
 from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
+from advsim_ros.campaign.shipping import bring_back, ship_job
+from advsim_ros.campaign.storage import Storage, storage_uri
 from advsim_ros.campaign.worker import RESULT_NAME
 from advsim_ros.core.atomic import write_json_atomically
 from advsim_ros.io.bag import BagConfig
@@ -47,6 +52,10 @@ class Job:
 
 def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     """Body of the Ray task: the worker process for one job, tied to this one; its result or its error."""
+    if "storage" in spec:  # its inputs and outputs in the storage: fetched here, the job run here, sent back
+        from advsim_ros.campaign.shipping import run_shipped_job
+
+        return run_shipped_job(spec)
     out_dir = Path(spec["out_dir"])
     result_file = out_dir / RESULT_NAME
     if result_file.is_file():  # finished before the driver could journal it
@@ -163,16 +172,22 @@ def run_campaign(
     progress: Callable[[dict[str, Any]], None] | None = None,
     note: Callable[[str], None] | None = None,
     bag_config: BagConfig | None = None,
+    storage: str | None = None,
 ) -> CampaignJournal:
     """Run (or resume) every job of the campaign; returns its journal. A bad config starts nothing.
 
     ``note`` gets what the search settings warn about (search_notes), once per algorithm and budget;
-    ``bag_config`` (--bag-params) is the layout of the bags whose entries name none (config.load_campaign).
+    ``bag_config`` (--bag-params) is the layout of the bags whose entries name none (config.load_campaign);
+    ``storage`` (--storage) is where jobs meet when it is not OUTDIR, else the config's ``storage:``.
     """
     campaign = load_campaign(config, bag_config)
+    uri = storage_uri(config, storage)
     if workers < 1:
         raise CampaignError(f"--workers: must be at least 1, got {workers}")
     out_dir = out_dir.resolve()
+    shipped = Storage(uri) if uri is not None else None
+    if shipped is not None and shipped.local_root is not None and shipped.local_root.resolve() == out_dir:
+        shipped = None  # OUTDIR itself: every job works in its folder there, as on one machine
     if (out_dir / JOURNAL_NAME).exists():  # another campaign's folder is refused before anything is written
         CampaignJournal.open(out_dir, campaign.digest, campaign.path)
     campaign = materialize(campaign, out_dir / "logs")
@@ -197,12 +212,19 @@ def run_campaign(
     import ray
 
     task = ray.remote(run_job).options(num_cpus=ATTACK_CPUS, memory=_attack_memory(), max_retries=0)
+    uploaded: dict[Path, dict[str, str]] = {}  # inputs in the storage: path -> reference
+    sending: dict[str, dict[str, float]] = {}  # what shipping each job in flight cost the driver
     try:
         in_flight: dict[Any, Job] = {}
         while todo or in_flight:
             while todo and len(in_flight) < workers:
                 job = todo.pop(0)
-                in_flight[task.remote(job.spec)] = job
+                spec = job.spec
+                if shipped is not None:
+                    sent, started = shipped.sent, time.monotonic()
+                    spec = ship_job(spec, shipped, out_dir, campaign.path.parent, uploaded)
+                    sending[job.name] = {"uploaded_bytes": shipped.sent - sent, "upload_s": time.monotonic() - started}
+                in_flight[task.remote(spec)] = job
             tie_local_ray()  # Ray starts worker processes as tasks come
             ready, _ = ray.wait(list(in_flight), num_returns=1)
             job = in_flight.pop(ready[0])
@@ -210,6 +232,8 @@ def run_campaign(
                 outcome = ray.get(ready[0])
             except ray.exceptions.RayError as error:  # its worker died (Ray's memory monitor, a crash): one job lost
                 outcome = {"ok": False, "error": f"Ray: {type(error).__name__}: {str(error).splitlines()[0]}"}
+            if shipped is not None:
+                outcome = bring_back(shipped, job.spec, outcome, out_dir, sending.pop(job.name))
             entry = _journal_entry(job, outcome)
             journal.append(job.name, entry)
             if job.spec["kind"] == "attack":

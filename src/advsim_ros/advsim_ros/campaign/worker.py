@@ -6,7 +6,8 @@ A Ray task starts this process (campaign.schedule.run_job) so that every attack 
 interpreter and its own ROS domain, as `advsim attack` would; the process is tied to the Ray
 worker (parent-death signal), and its graph to it (ros.launcher), so a dead driver leaves
 nothing running. The job's outcome goes atomically to OUT/job_result.json: that file is what
-"finished" means, and a job that has it is never run again.
+"finished" means, and a job that has it is never run again. A job whose inputs were shipped to its
+node (campaign.shipping) names their paths there under "local"; its plan keeps the driver's, its identity.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import json
 import resource
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +48,9 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
     started = time.monotonic()
     if job["kind"] == "attack":
         plan = AttackPlan.from_json(job["plan"])
-        summary = run_attack(plan.options(out_dir, config_dir)).summary
+        local = job.get("local") or {}
+        runnable = replace(plan, bag=local.get("bag", plan.bag), stack_entry=local.get("stack_entry", plan.stack_entry))
+        summary = run_attack(runnable.options(out_dir, config_dir)).summary
         row = attack_row(plan.identity(), summary, _cost(summary, time.monotonic() - started), job["relative_dir"])
         bag = (summary.get("outputs") or {}).get("adversarial_bag")
         finding = summary.get("finding")

@@ -25,6 +25,11 @@ def add_campaign_commands(subparsers: argparse._SubParsersAction[argparse.Argume
     campaign.add_argument("-o", "--out", type=Path, required=True, help="output folder (re-using it resumes)")
     campaign.add_argument("--workers", type=int, default=1, help="attacks at once (default 1; 2 cores: 1 or 2)")
     campaign.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start one here)")
+    campaign.add_argument(
+        "--storage", default=None, metavar="URI",
+        help="where jobs' inputs and outputs meet when Ray nodes share no folder: s3://BUCKET/PREFIX, gs://..., "
+        "file:///... (default: the config's storage:, else OUTDIR itself)",
+    )  # fmt: skip
     add_bag_params_option(campaign)
     campaign.set_defaults(run=_run_campaign)
 
@@ -86,7 +91,9 @@ def _run_campaign(args: argparse.Namespace) -> int:
     bag_config = bag_params_config(args.bag_params)  # for the config's bag | bags without a bag_params of their own
     progress = _Progress()
     try:
-        journal = run_campaign(args.config, args.out, args.workers, args.ray_address, progress, _note, bag_config)
+        journal = run_campaign(
+            args.config, args.out, args.workers, args.ray_address, progress, _note, bag_config, args.storage
+        )
     finally:
         progress.close()
     written = write_campaign_outputs(args.config, args.out, journal, bag_config)

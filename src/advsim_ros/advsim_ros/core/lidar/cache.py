@@ -47,7 +47,12 @@ def save_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
 @contextlib.contextmanager
 def build_lock(path: Path) -> Iterator[None]:
     """An exclusive lock beside path while held: of the attacks that need the same file at once, one builds
-    it and the others wait and read it (a campaign's attacks of one log). The kernel drops it with its process."""
+    it and the others wait and read it (a campaign's attacks of one log). The kernel drops it with its process.
+
+    The lock is one node's: caches live in each node's own cache folder (io.cache.cache_root), so each node of a
+    cluster builds or loads its own. Nothing relies on it across machines: the file is keyed by what it is built
+    from and written whole under a temporary name, then renamed, so builders the lock does not reach (a cache
+    folder several nodes mount) cost a second build at worst, never a torn or stale file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path.with_name(f"{path.name}.lock"), "a", encoding="utf-8") as stream:
         fcntl.flock(stream.fileno(), fcntl.LOCK_EX)
