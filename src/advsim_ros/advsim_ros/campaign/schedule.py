@@ -12,11 +12,9 @@ no node needs to see the driver's folders.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -26,19 +24,18 @@ from typing import Any
 
 from advsim_ros.attack.run import search_notes
 from advsim_ros.campaign.config import AttackPlan, Campaign, CampaignError, expand, load_campaign, materialize
+from advsim_ros.campaign.job import run_local_job
 from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
 from advsim_ros.campaign.results import failed_row
-from advsim_ros.campaign.shipping import bring_back, ship_job
+from advsim_ros.campaign.shipping import bring_back, run_shipped_job, ship_job
 from advsim_ros.campaign.storage import Storage, storage_uri
-from advsim_ros.campaign.worker import RESULT_NAME
-from advsim_ros.core.atomic import write_json_atomically
 from advsim_ros.io.bag import BagConfig
-from advsim_ros.ros.launcher import die_with_parent, start_reaper
+from advsim_ros.ros.launcher import start_reaper
 from advsim_ros.ros.reaper import descendants, start_time
 
 ATTACK_CPUS = 1.0  # Ray resources an attack asks for: its graph is mostly one busy process at a time
-# [bytes]: a KITTI attack's processes peak at 2.4 GB RSS summed while its graph builds the re-simulation model,
-# 2.0 GB with the model cached (bench/bench_attack.py: graph and orchestrator, cold and warm)
+# [bytes]: a KITTI attack's processes peak at 2.2 GB RSS summed while its graph builds the re-simulation model,
+# 1.7 GB with the model cached (bench/bench_attack.py: graph and orchestrator, cold and warm)
 ATTACK_MEMORY = int(2.5 * 1024**3)
 
 
@@ -53,28 +50,8 @@ class Job:
 def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     """Body of the Ray task: the worker process for one job, tied to this one; its result or its error."""
     if "storage" in spec:  # its inputs and outputs in the storage: fetched here, the job run here, sent back
-        from advsim_ros.campaign.shipping import run_shipped_job
-
         return run_shipped_job(spec)
-    out_dir = Path(spec["out_dir"])
-    result_file = out_dir / RESULT_NAME
-    if result_file.is_file():  # finished before the driver could journal it
-        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    job_file = out_dir / "job.json"
-    write_json_atomically(job_file, spec)
-    with (out_dir / "job.log").open("ab") as log:
-        log.write(f"advsim campaign: {spec['kind']} job started in {out_dir}\n".encode())
-        log.flush()
-        completed = subprocess.run(
-            die_with_parent([sys.executable, "-m", "advsim_ros.campaign.worker", str(job_file)]),
-            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, check=False,
-        )  # fmt: skip
-    if completed.returncode == 0 and result_file.is_file():
-        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
-    lines = (out_dir / "job.log").read_text(encoding="utf-8", errors="replace").strip().splitlines()
-    reason = next((line for line in reversed(lines) if line.strip()), f"exit status {completed.returncode}")
-    return {"ok": False, "error": f"{reason} (log: {out_dir / 'job.log'})"}
+    return run_local_job(spec)
 
 
 def _attack_job(plan: AttackPlan, out_dir: Path, config_dir: Path) -> Job:

@@ -6,7 +6,7 @@ config's folder become inputs uploaded once and keyed by their content digest; a
 adversarial bag is the stored output folder of the attack that found it. On the node
 (``run_shipped_job``, the body of the job's Ray task), a job whose job_result.json is in the
 storage has finished and is not run again; otherwise its inputs are fetched into the node's cache,
-the job runs exactly as on one machine (schedule.run_job) in a scratch folder of the node, and
+the job runs exactly as on one machine (job.run_local_job) in a scratch folder of the node, and
 every output it wrote goes to the storage, job_result.json last. Back on the driver
 (``bring_back``), the job's folder is downloaded into OUTDIR: the campaign journal, the report and
 the regression suite are built from there as on one machine.
@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from advsim_ros.campaign.job import run_local_job
 from advsim_ros.campaign.storage import Storage
 from advsim_ros.campaign.worker import RESULT_NAME
 from advsim_ros.core.atomic import atomic_folder
@@ -57,8 +58,6 @@ def ship_job(spec: dict[str, Any], storage: Storage, out_dir: Path, config_dir: 
 
 def run_shipped_job(spec: dict[str, Any]) -> dict[str, Any]:
     """Body of the Ray task of a shipped job: its result (from the storage when it finished before) or its error."""
-    from advsim_ros.campaign.schedule import run_job
-
     storage = Storage(spec["storage"])
     relative = spec["relative_dir"]
     if storage.exists(f"{relative}/{RESULT_NAME}"):  # finished before the driver could journal it
@@ -85,7 +84,7 @@ def run_shipped_job(spec: dict[str, Any]) -> dict[str, Any]:
         else:
             local.update(bag=str(bag), stack_entry=entry)
         fetched, fetch_s = storage.received, time.monotonic() - started
-        outcome = run_job(local)
+        outcome = run_local_job(local)
         started = time.monotonic()
         storage.remove(relative)  # what an earlier try left there (its log goes on in this one's)
         storage.put_tree(out_dir, relative, skip=(RESULT_NAME,))

@@ -1,0 +1,41 @@
+"""One campaign job run on this machine: the worker process (campaign.worker) with its own log, tied to this one.
+
+schedule.run_job runs it for a job whose paths are the driver's; campaign.shipping for a shipped job, in a
+scratch folder of the node its inputs were fetched to. A job with OUT/job_result.json is finished and is
+not run again.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from advsim_ros.campaign.worker import RESULT_NAME
+from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.ros.launcher import die_with_parent
+
+
+def run_local_job(spec: dict[str, Any]) -> dict[str, Any]:
+    """The worker process for one job whose paths are this machine's, tied to this one; its result or its error."""
+    out_dir = Path(spec["out_dir"])
+    result_file = out_dir / RESULT_NAME
+    if result_file.is_file():  # finished before the driver could journal it
+        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    job_file = out_dir / "job.json"
+    write_json_atomically(job_file, spec)
+    with (out_dir / "job.log").open("ab") as log:
+        log.write(f"advsim campaign: {spec['kind']} job started in {out_dir}\n".encode())
+        log.flush()
+        completed = subprocess.run(
+            die_with_parent([sys.executable, "-m", "advsim_ros.campaign.worker", str(job_file)]),
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, check=False,
+        )  # fmt: skip
+    if completed.returncode == 0 and result_file.is_file():
+        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
+    lines = (out_dir / "job.log").read_text(encoding="utf-8", errors="replace").strip().splitlines()
+    reason = next((line for line in reversed(lines) if line.strip()), f"exit status {completed.returncode}")
+    return {"ok": False, "error": f"{reason} (log: {out_dir / 'job.log'})"}
