@@ -18,6 +18,15 @@ from advsim_ros.io.bag import BagError
 from advsim_ros.ros.launcher import LaunchError
 
 
+def _stderr_of_failing(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], error: BaseException
+) -> list[str]:
+    """The lines `advsim fail` writes to stderr when it raises ``error`` (its exit status checked: 1)."""
+    _failing(monkeypatch, error)
+    assert cli.main(["fail"]) == 1
+    return capsys.readouterr().err.splitlines()
+
+
 def _failing(monkeypatch: pytest.MonkeyPatch, error: BaseException) -> None:
     """`advsim fail` raises ``error``."""
 
@@ -47,10 +56,7 @@ def _failing(monkeypatch: pytest.MonkeyPatch, error: BaseException) -> None:
 def test_a_user_error_is_one_line_without_a_traceback_and_a_non_zero_exit(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], error: Exception
 ) -> None:
-    _failing(monkeypatch, error)
-    assert cli.main(["fail"]) == 1
-    err = capsys.readouterr().err
-    assert err.splitlines() == [f"advsim fail: error: {error}"]
+    assert _stderr_of_failing(monkeypatch, capsys, error) == [f"advsim fail: error: {error}"]
 
 
 @pytest.mark.parametrize(
@@ -61,9 +67,7 @@ def test_a_user_error_is_one_line_without_a_traceback_and_a_non_zero_exit(
 def test_an_unexpected_exception_is_a_summary_line_then_its_traceback_and_a_non_zero_exit(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], error: Exception
 ) -> None:
-    _failing(monkeypatch, error)
-    assert cli.main(["fail"]) == 1
-    lines = capsys.readouterr().err.splitlines()
+    lines = _stderr_of_failing(monkeypatch, capsys, error)
     assert lines[0] == f"advsim fail: internal error: {type(error).__name__}: {error}"
     assert lines[1] == "Traceback (most recent call last):"
     assert lines[-1].startswith(type(error).__name__)
@@ -73,9 +77,7 @@ def test_an_unexpected_exception_is_a_summary_line_then_its_traceback_and_a_non_
 def test_a_multi_line_message_of_a_bug_still_gives_a_one_line_summary(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    _failing(monkeypatch, RuntimeError("first\nsecond"))
-    assert cli.main(["fail"]) == 1
-    lines = capsys.readouterr().err.splitlines()
+    lines = _stderr_of_failing(monkeypatch, capsys, RuntimeError("first\nsecond"))
     assert lines[0] == "advsim fail: internal error: RuntimeError: first second"
     assert lines[1] == "Traceback (most recent call last):"
 

@@ -1,13 +1,12 @@
 """The episode protocol's lock-step replay of one query, as the scenario player runs it.
 
-The player asks lidar_resim for the sweeps of the next frames ahead (FrameRequest; the answers
-come back on /advsim/rendered_points), so re-simulation overlaps the stack's planning. For every
-history frame, in order: /clock, the ego pose (/tf, /ego/odom) and the frame's sweep on the LiDAR
-topic; then, when configured, wait until the stack's plan for it came back before the next
-frame. No frame is skipped: the replay runs as fast as its slowest participant. A stack that is
-gone (its plan publisher vanished or was replaced) or silent past the timeout ends the query
-early. Everything the stack was sent and answered is digested in log time, so runs and re-runs
-of the same query can be compared.
+The player asks lidar_resim for the sweeps of the next frames ahead (FrameRequest; the answers come back
+on /advsim/rendered_points), so re-simulation overlaps the stack's planning. For every history frame, in
+order: /clock, the ego pose (/tf, /ego/odom) and the frame's sweep on the LiDAR topic; then, when
+configured, wait until the stack's plan for it came back before the next frame. No frame is skipped: the
+replay runs as fast as its slowest participant. A stack that is gone (its plan publisher vanished or was
+replaced) or silent past the timeout ends the query early. Everything the stack was sent and answered is
+digested in log time, so runs and re-runs of the same query can be compared.
 """
 
 from __future__ import annotations
@@ -75,7 +74,6 @@ class StackNames:
 
     The contract's names, unless the stack keeps names of its own and stack_adapter bridges them
     (``advsim attack --remap CONTRACT:=STACK``): then the stack is looked for under its names.
-    Endpoints of the attack graph's own nodes (advsim_ros.graph.NAMES, given by the caller) are never the stack's.
     """
 
     graph_nodes: frozenset[str]  # the attack graph's node names: every other node on the domain is the stack's
@@ -116,9 +114,8 @@ STACK_TOPICS = (
 
 
 def _stack_gids(node: Node, names: StackNames) -> frozenset[bytes]:
-    endpoints = stack_endpoints(node, names(topics.LIDAR), False, names) + stack_endpoints(
-        node, names(topics.PLAN), True, names
-    )
+    lidar = stack_endpoints(node, names(topics.LIDAR), False, names)
+    endpoints = lidar + stack_endpoints(node, names(topics.PLAN), True, names)
     return frozenset(bytes(info.endpoint_gid) for info in endpoints)
 
 
@@ -278,8 +275,7 @@ class Outputs:
     odometry: Callable[[Msg | bytes], None]
     lidar: Callable[[bytes], None]
     frame_request: Callable[[FrameRequestRecord], None]
-    # record, detections, predictions (decoded or None)
-    episode: Callable[[EpisodeRecord, Msg | None, Msg | None], None]
+    episode: Callable[[EpisodeRecord, Msg | None, Msg | None], None]  # record, detections, predictions (or None)
     tf_message: Callable[[int, FloatArray], Msg]  # sim stamp, world_T_ego -> tf2_msgs/TFMessage
     trace: Callable[[str, int, int], None]  # event, query, frame (ros.trace)
     odometry_of: Callable[[int, FloatArray, VehicleState], bytes] | None = None  # closed loop: the simulated ego's
