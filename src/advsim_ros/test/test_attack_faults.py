@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -229,6 +230,43 @@ def test_an_attack_suspended_while_its_graph_searches_on_journals_every_query_wh
     assert orchestrator.returncode == 0, errors
     assert journaled(out) == list(range(last_query + 1))  # every query exactly once
     assert measured(json.loads((out / "summary.json").read_text())) == measured(reference)
+
+
+def _outputs_process(orchestrator: int) -> int | None:
+    """The attack's outputs process (attack.outputs_worker), once it runs."""
+    for pid in children(orchestrator):
+        with contextlib.suppress(OSError):
+            if b"advsim_ros.attack.outputs_worker" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return pid
+    return None
+
+
+@pytest.mark.slow
+def test_an_outputs_process_killed_while_the_graph_searches_leaves_the_same_outputs_written_by_the_attack(
+    kitti_window_bag: Path, tmp_path: Path, uninterrupted: tuple[str, dict[str, Any]]
+) -> None:
+    """The outputs are prepared by a process of their own (the OOM killer's likeliest prey: it holds the window's
+    sweeps and the re-simulation model): killed, the attack writes them itself, the same, and still exits 0."""
+    stack, reference = uninterrupted
+    out = tmp_path / "outputs_killed"
+    orchestrator = subprocess.Popen(attack_argv(kitti_window_bag, out, stack), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert wait_for(lambda: len(journaled(out)) >= 2 or orchestrator.poll() is not None, timeout=600)
+        worker = _outputs_process(orchestrator.pid)
+        assert worker is not None, "no outputs process while the graph searches"
+        os.kill(worker, signal.SIGKILL)
+        _, errors = orchestrator.communicate(timeout=600)
+    finally:
+        orchestrator.kill()  # only if the test failed: it has exited otherwise
+    assert orchestrator.returncode == 0, errors
+    summary = json.loads((out / "summary.json").read_text())
+    assert measured(summary) == measured(reference)
+    assert summary["recorded_inputs_reproduced"] is True  # the bag's sweeps are what the stack received
+    assert "outputs_peak_rss_mb" not in summary["resources"]  # written by the orchestrator, not the worker
+    assert (out / "bev.png").stat().st_size > 0
+    assert (out / "report.html").stat().st_size > 0
+    assert "outputs_peak_rss_mb" in reference["resources"]  # the undisturbed attack's came from the worker
 
 
 @pytest.mark.slow

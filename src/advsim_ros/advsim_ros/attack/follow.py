@@ -25,6 +25,7 @@ from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.closed_loop import ControllerConfig
 from advsim_ros.core.journal import Journal, QueryRecord
+from advsim_ros.core.search.driver import NOT_SEARCHED, RERUN
 from advsim_ros.ros.launcher import Launcher, NodeSpec
 from advsim_ros.ros.monitor import AttackMonitor
 
@@ -81,8 +82,12 @@ def follow(
     lanes: Sequence[Lane],
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
+    on_searched: Callable[[Sequence[QueryRecord]], None] | None = None,
 ) -> list[dict[str, Any]]:
-    """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code)."""
+    """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code).
+
+    ``on_searched`` is called once with the journal's records when the search's own queries are all in it
+    (the re-runs and controls may still run)."""
     clock = checked.window.clock(checked.scenario.frame_stamps_ns.tolist())
     decision_log = int(
         checked.scenario.frame_stamps_ns[checked.window.window_start_frame + checked.window.decision_index]
@@ -109,6 +114,9 @@ def follow(
             first.monitor.node.trace("journaled", query.perturbation.query_id)
         if finished:
             last_change = time.monotonic()
+            if on_searched is not None and not options.replay_only and _search_done(journal.records, options.queries):
+                on_searched(journal.records)
+                on_searched = None
             if progress is not None:
                 progress(_progress(lanes, len(journal)))
             if options.replay_only:
@@ -152,6 +160,12 @@ def follow(
         _write_stack_graph(options, first.monitor, final=True)
     journal.mark_finished()
     return crashes
+
+
+def _search_done(records: Sequence[QueryRecord], queries: int) -> bool:
+    """Whether the search's own queries are journaled: its budget's worth, or a re-run already came."""
+    searched = sum(record.algorithm not in NOT_SEARCHED for record in records)
+    return searched >= queries or any(record.algorithm == RERUN for record in records)
 
 
 def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[dict[str, Any]]) -> None:

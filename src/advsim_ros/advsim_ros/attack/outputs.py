@@ -13,6 +13,7 @@ received, and summary.json says whether they agree. Every file is written atomic
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -40,12 +41,12 @@ from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.atomic import write_json_atomically
 from advsim_ros.core.drivable import DrivableConfig
-from advsim_ros.core.journal import Journal, QueryRecord
+from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.lidar.config import ResimConfig
-from advsim_ros.core.lidar.query import query_sweep
+from advsim_ros.core.lidar.query import query_sweep, tracks_digest
 from advsim_ros.core.lidar.resim import ResimModel
 from advsim_ros.core.metrics import MetricsConfig
-from advsim_ros.core.types import DrivableArea, Perturbation, Scenario, Sweep, replace_actors
+from advsim_ros.core.types import ActorTrack, DrivableArea, Perturbation, Scenario, Sweep, replace_actors
 from advsim_ros.io.bag import BagReader, bag_layout_json, read_scenario_bag, write_scenario_bag
 from advsim_ros.io.cache import cache_root
 from advsim_ros.io.drivable_cache import bag_drivable_area
@@ -54,30 +55,56 @@ ADVERSARIAL_BAG = "adversarial"
 T = TypeVar("T")
 
 
+@dataclass
+class OutputsInputs:
+    """What the outputs are made from besides the journal, read once (ahead of time by attack.outputs_worker):
+    the log with the window's sweeps, the drivable area as scored, and the adversarial sweeps already made
+    (by the digest of the perturbed tracks they show) with the model they were made from."""
+
+    scenario: Scenario
+    drivable: DrivableArea
+    model: ResimModel | None = None
+    made: dict[str, tuple[Sweep, ...]] = field(default_factory=dict)  # by tracks_digest of the perturbed tracks
+
+
+def read_outputs_inputs(checked: Preflight) -> OutputsInputs:
+    """The log with the window's sweeps (the only ones re-simulated and drawn) and the drivable area as scored."""
+    drivable_config = section(checked.parameters[graph.SCORER.name], graph.DRIVABLE.key, DrivableConfig, "drivable")
+    frames = checked.window.frame_indices(checked.scenario.num_frames)
+    stamps = checked.scenario.frame_stamps_ns
+    scenario = read_scenario_bag(
+        checked.bag, config=checked.bag_config, sweeps_between=(int(stamps[frames.start]), int(stamps[frames.stop - 1]))
+    )
+    drivable = bag_drivable_area(checked.bag, checked.scenario, drivable_config, checked.bag_config)
+    return OutputsInputs(scenario, drivable)
+
+
 def write_outputs(
     options: AttackOptions,
     checked: Preflight,
-    journal: Journal,
+    records: list[QueryRecord],
+    journal_path: Path,
     wall_time: float,
     crashes: list[dict[str, Any]],
     domain_id: int | None,
-    resources: dict[str, Any],
+    resources: Callable[[], dict[str, Any]],
+    inputs: OutputsInputs | None = None,
+    fork: bool = False,
 ) -> dict[str, Any]:
     """Write the adversarial bag (attacks only), summary.json and bev.png (bev.gif and report.html too unless
-    --no-visuals); return the summary."""
+    --no-visuals); return the summary. ``resources`` is asked for once the bag is written (the graph's
+    processes may end meanwhile); ``fork``: see write_view_figures."""
     from advsim_ros.viz.attack_view import load_attack_view
-    from advsim_ros.viz.bev import write_bev_still
-    from advsim_ros.viz.outputs import write_view_outputs
+    from advsim_ros.viz.outputs import write_view_figures
 
     out_dir = options.out_dir.resolve()
-    records = journal.records
+    inputs = inputs or read_outputs_inputs(checked)
     analysis = attack_summary(records)
     window = checked.window
     decision_frame = window.window_start_frame + window.decision_index
     analysis["controls"] = controls(records, int(checked.scenario.frame_stamps_ns[decision_frame]))
     scorer = checked.parameters[graph.SCORER.name]
-    drivable_config = section(scorer, graph.DRIVABLE.key, DrivableConfig, "drivable")
-    drivable = bag_drivable_area(checked.bag, checked.scenario, drivable_config, checked.bag_config)  # as scored
+    drivable = inputs.drivable
     metrics = section(scorer, "metrics", MetricsConfig, "/scorer metrics")
     faults = query_faults(records, checked.scenario, decision_frame, metrics, drivable)
     for entry in analysis["queries"]:
@@ -108,15 +135,11 @@ def write_outputs(
         "verdict": attack_verdict(records, options.replay_only).as_json(),
         "stack_crashes": crashes,
         "wall_time_s": wall_time,
-        "resources": resources,  # this run's processes (empty when the journal was finished before)
+        "resources": {},  # this run's processes (empty when the journal was finished before): below
         "ros_domain_id": domain_id,
-        "outputs": {"journal": str(journal.path), "bev": str(out_dir / "bev.png")},
+        "outputs": {"journal": str(journal_path), "bev": str(out_dir / "bev.png")},
     }
-    frames = window.frame_indices(checked.scenario.num_frames)
-    stamps = checked.scenario.frame_stamps_ns
-    scenario = read_scenario_bag(
-        checked.bag, config=checked.bag_config, sweeps_between=(int(stamps[frames.start]), int(stamps[frames.stop - 1]))
-    )  # the log with the window's sweeps: the only ones re-simulated and drawn
+    scenario = inputs.scenario
     adversarial = original = window.crop(scenario)
     if options.replay_only:
         summary["replay"] = _replay_runs(records)
@@ -126,9 +149,10 @@ def write_outputs(
         summary["perturbed_actors"] = [] if not records else _perturbed_actors(records)
         recorded = recorded_query(records)
         if recorded is not None:
-            adversarial, reproduced = _write_adversarial_bag(out_dir, options, checked, scenario, recorded, drivable)
+            adversarial, reproduced = _write_adversarial_bag(out_dir, checked, inputs, recorded)
             summary["outputs"]["adversarial_bag"] = str(out_dir / ADVERSARIAL_BAG)
             summary["recorded_inputs_reproduced"] = reproduced
+    summary["resources"] = resources()
     write_json_atomically(out_dir / "summary.json", summary)
     by_id = {record.query_id: record for record in records}
     shown = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
@@ -138,10 +162,10 @@ def write_outputs(
     bag = out_dir / ADVERSARIAL_BAG if summary["outputs"].get("adversarial_bag") else checked.bag
     written = (adversarial, shown.plan if shown else None)
     view = load_attack_view(bag, summary, checked.bag_config, original, written)
-    write_bev_still(view, out_dir / "bev.png")
-    # bev.gif and report.html (`advsim report OUTDIR` draws them again from the bag and summary.json)
-    if options.visual_report and summary["outputs"].get("adversarial_bag"):
-        summary["outputs"].update(write_view_outputs(view, out_dir))
+    # bev.gif and report.html too (`advsim report OUTDIR` draws them again from the bag and summary.json)
+    visuals = bool(options.visual_report and summary["outputs"].get("adversarial_bag"))
+    summary["outputs"].update(write_view_figures(view, out_dir, visuals, fork=fork))
+    if visuals:
         write_json_atomically(out_dir / "summary.json", summary)
     return summary
 
@@ -156,52 +180,56 @@ def _replay_runs(records: list[QueryRecord]) -> dict[str, Any]:
     return {"runs": len(records), "adversarial_losses": [None if v != v else v for v in values]}
 
 
+def adversarial_sweeps(inputs: OutputsInputs, checked: Preflight, tracks: tuple[ActorTrack, ...]) -> tuple[Sweep, ...]:
+    """The window's history sweeps with ``tracks`` re-simulated, as lidar_resim made them (made once per tracks)."""
+    key = tracks_digest(tracks)
+    if key not in inputs.made:
+        window = checked.window
+        cropped = window.crop(inputs.scenario)  # as lidar_resim: the model of the window's frames
+        resim_parameters = checked.parameters[graph.LIDAR_RESIM.name]
+        seed = int(resim_parameters.get("seed", 0))
+        cache = Path(str(resim_parameters.get("cache_dir") or cache_root() / "resim"))
+        if tracks and inputs.model is None:
+            config = section(resim_parameters, "resim", ResimConfig, "resim")
+            inputs.model = ResimModel.build(cropped, cache_dir=cache, config=config)
+        sweeps_by_stamp = {sweep.stamp_ns: sweep for sweep in cropped.sweeps}
+        sweeps = []
+        for index in range(window.history_frames):
+            logged = sweeps_by_stamp[int(cropped.frame_stamps_ns[index])]
+            pose = cropped.ego.poses[index]
+            points = query_sweep(inputs.model, cropped, logged, pose, tracks, seed)
+            sweeps.append(Sweep(logged.stamp_ns, logged.frame_id, points, pose @ cropped.ego_T_sensor))
+        inputs.made[key] = tuple(sweeps)
+    return inputs.made[key]
+
+
 def _write_adversarial_bag(
-    out_dir: Path,
-    options: AttackOptions,
-    checked: Preflight,
-    scenario: Scenario,
-    recorded: QueryRecord,
-    drivable: DrivableArea | None,
+    out_dir: Path, checked: Preflight, inputs: OutputsInputs, recorded: QueryRecord
 ) -> tuple[Scenario, bool]:
     """The recorded query's window as a scenario bag; whether its sweeps digest to what the stack received."""
     window = checked.window
+    scenario = inputs.scenario
     frames = window.frame_indices(scenario.num_frames)
-    cropped = window.crop(scenario)  # as lidar_resim: the model of the window's frames
-    resim_parameters = checked.parameters[graph.LIDAR_RESIM.name]
-    seed = int(resim_parameters.get("seed", 0))
-    cache = Path(str(resim_parameters.get("cache_dir") or cache_root() / "resim"))
-    model = None
-    if recorded.tracks:
-        model = ResimModel.build(
-            cropped, cache_dir=cache, config=section(resim_parameters, "resim", ResimConfig, "resim")
-        )
+    cropped = window.crop(scenario)
     bag = checked.bag_config
     odometry = odometry_msgs(scenario.ego, bag.world_frame, bag.ego_frame)
-    sweeps_by_stamp = {sweep.stamp_ns: sweep for sweep in cropped.sweeps}
+    sweeps = adversarial_sweeps(inputs, checked, recorded.tracks)
     digest = InputDigest()
-    sweeps = []
-    for index in range(window.history_frames):
-        stamp = int(cropped.frame_stamps_ns[index])
-        logged = sweeps_by_stamp[stamp]
-        pose = cropped.ego.poses[index]
-        points = query_sweep(model, cropped, logged, pose, recorded.tracks, seed)
-        sweep = Sweep(stamp, logged.frame_id, points, pose @ cropped.ego_T_sensor)
-        digest.frame(stamp, codec.encode(odometry[frames.start + index]), pose)
+    for index, sweep in enumerate(sweeps):
+        digest.frame(sweep.stamp_ns, codec.encode(odometry[frames.start + index]), cropped.ego.poses[index])
         digest.sweep(codec.encode(cloud_msg(sweep)))
-        sweeps.append(sweep)
     adversarial = Scenario(
         scenario_id=f"{cropped.scenario_id}/adversarial",
         frame_stamps_ns=cropped.frame_stamps_ns,
         ego=cropped.ego,
         actors=replace_actors(cropped.actors, recorded.tracks),
-        sweeps=tuple(sweeps),
+        sweeps=sweeps,
         ego_T_sensor=cropped.ego_T_sensor,
         sensor=cropped.sensor,
         road_map=cropped.road_map,
         ego_geometry=cropped.ego_geometry,
         sensor_frame=cropped.sensor_frame,
-        drivable_area=drivable,
+        drivable_area=inputs.drivable,
     )
     decision = int(scenario.frame_stamps_ns[frames.start + window.decision_index])
     extra = [

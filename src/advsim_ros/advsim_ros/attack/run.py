@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
@@ -34,10 +34,12 @@ from advsim_ros.adapters.profile import StackProfile
 from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
-from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.attack.summary import recorded_query
+from advsim_ros.core.atomic import write_json_atomically, write_text_atomically
 from advsim_ros.core.digest import Digest
-from advsim_ros.core.journal import Fingerprint, Journal
+from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
 from advsim_ros.core.renamed import RENAMED_ALGORITHMS
+from advsim_ros.core.search.driver import NOT_SEARCHED
 from advsim_ros.core.search.registry import config_from_params
 from advsim_ros.io.bag import bag_layout_json
 from advsim_ros.ros.launcher import (
@@ -49,6 +51,9 @@ from advsim_ros.ros.launcher import (
     reserve_domain_id,
 )
 from advsim_ros.ros.trace import Trace
+
+if TYPE_CHECKING:  # imported when used: `python -m advsim_ros.attack.outputs_worker` must find it not yet imported
+    from advsim_ros.attack.outputs_worker import OutputsWorker
 
 JOURNAL_NAME = "queries.jsonl"
 LOCK_NAME = ".advsim.lock"  # held by the run using the folder (hold_output_folder)
@@ -255,25 +260,33 @@ def _run_locked(
     started = time.monotonic()
     trace = Trace("advsim_attack")
     trace("checked")
-    crashes: list[dict[str, Any]] = []
-    domain_id = None
-    used: dict[str, dict[str, float]] = {}
-    if not journal.finished:
+    from advsim_ros.attack.outputs import write_outputs  # open3d: not before the graph runs
+    from advsim_ros.attack.outputs_worker import OutputsWorker
+
+    if journal.finished:  # only the outputs are left to write
+        trace("graph_done")
+        records, wall_time = journal.records, time.monotonic() - started
+        summary = write_outputs(options, checked, records, journal.path, wall_time, [], None, lambda: _resources({}))
+    else:
         overrides_file = out_dir / "run" / "overrides.yaml"
         write_text_atomically(overrides_file, yaml.safe_dump(overrides, sort_keys=False))
-        domain_id, crashes, used = _run_graph(options, checked, overrides_file, journal, progress)
-    from advsim_ros.attack.outputs import write_outputs
+        worker = OutputsWorker(options, checked, out_dir / "run" / "logs" / "outputs.log")
+        try:
+            summary = _run_graph(options, checked, overrides_file, journal, progress, worker, started, trace)
+        finally:
+            worker.close()
+    trace("outputs_written")
+    return AttackResult(out_dir, summary)
 
-    trace("graph_done")
-    resources = {
+
+def _resources(used: dict[str, dict[str, float]]) -> dict[str, Any]:
+    """summary.json's "resources": the graph's processes (none when the journal was finished before) and this one."""
+    return {
         "processes": used,
         "graph_peak_rss_mb": sum(item["peak_rss_mb"] for item in used.values()),
         "graph_cpu_s": sum(item["cpu_s"] for item in used.values()),
         "orchestrator_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
-    summary = write_outputs(options, checked, journal, time.monotonic() - started, crashes, domain_id, resources)
-    trace("outputs_written")
-    return AttackResult(out_dir, summary)
 
 
 def _run_graph(
@@ -282,9 +295,14 @@ def _run_graph(
     overrides_file: Path,
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
-) -> tuple[int, list[dict[str, Any]], dict[str, dict[str, float]]]:
-    """Launch the graph (one per evaluation lane, each on a ROS domain of its own) and follow it to the end."""
+    worker: OutputsWorker,
+    started: float,
+    trace: Trace,
+) -> dict[str, Any]:
+    """Launch the graph (one per evaluation lane, each on a ROS domain of its own), follow it to the end and have
+    the worker write the outputs (the bag while the graph's processes end); returns the summary."""
     from advsim_ros.attack.follow import Lane, follow
+    from advsim_ros.attack.outputs_worker import OutputsWorkerLostError
     from advsim_ros.ros.lockstep import StackNames
     from advsim_ros.ros.monitor import AttackMonitor  # rclpy only once the graph's environment is set
 
@@ -317,13 +335,37 @@ def _run_graph(
             for process in (*stack, *specs):
                 launcher.start(process)
             lanes.append(Lane(launcher, monitor, stack, specs))
-        crashes = follow(options, checked, lanes, journal, progress)
+        crashes = follow(options, checked, lanes, journal, progress, _speculation(worker))
         used = {
             name if index == 0 else f"lane{index}/{name}": figures
             for index, lane in enumerate(lanes)
             for name, figures in lane.launcher.resources().items()
         }
-    return domains[0], crashes, used
+        trace("graph_done")
+        worker.start_writing(journal.records, journal.path, time.monotonic() - started, crashes, domains[0])
+    try:  # the graph's processes have ended meanwhile
+        summary, worker_peak_mb = worker.finish(_resources(used))
+    except OutputsWorkerLostError:  # written here instead (the same files)
+        from advsim_ros.attack.outputs import write_outputs
+
+        return write_outputs(
+            options, checked, journal.records, journal.path, time.monotonic() - started, crashes, domains[0],
+            lambda: _resources(used),
+        )  # fmt: skip
+    summary["resources"]["outputs_peak_rss_mb"] = worker_peak_mb  # the worker's own figure, known only now
+    write_json_atomically(options.out_dir.resolve() / "summary.json", summary)
+    return summary
+
+
+def _speculation(worker: OutputsWorker) -> Callable[[Sequence[QueryRecord]], None]:
+    """What follow calls once the search's own queries are journaled: the worker re-simulates the best one."""
+
+    def searched(records: Sequence[QueryRecord]) -> None:
+        best = recorded_query([record for record in records if record.algorithm not in NOT_SEARCHED])
+        if best is not None and best.tracks:
+            worker.speculate(best.tracks)
+
+    return searched
 
 
 def _graph_specs(

@@ -30,13 +30,24 @@ def world_rng(seed: int, moved: Sequence[ActorTrack], log_stamp_ns: int) -> np.r
     digest = Digest("resim ray drop")
     digest.integer(seed)
     digest.integer(log_stamp_ns)
+    _add_tracks(digest, moved)
+    return np.random.default_rng(digest.seed_words())
+
+
+def tracks_digest(moved: Sequence[ActorTrack]) -> str:
+    """The content of a perturbed world's moved tracks: equal digests, equal re-simulated sweeps."""
+    digest = Digest("moved tracks")
+    _add_tracks(digest, moved)
+    return digest.hexdigest()
+
+
+def _add_tracks(digest: Digest, moved: Sequence[ActorTrack]) -> None:
     for track in sorted(moved, key=lambda t: t.actor_id):
         digest.text(track.actor_id)
         digest.array(track.stamps_ns)
         digest.array(track.centers)
         digest.array(track.yaws)
         digest.array(track.size)
-    return np.random.default_rng(digest.seed_words())
 
 
 def query_sweep(

@@ -1,0 +1,148 @@
+"""The attack's outputs made by a process of its own, most of their inputs ready before the graph ends.
+
+While the graph runs the searched queries, this process reads the window's sweeps and the drivable
+area and imports the drawing libraries; once the search's last query is journaled it loads the
+re-simulation model and re-simulates the best searched query's sweeps (what the recorded query,
+the last re-run of the best, shows: a re-run has the same tracks) while the graph re-runs it. When
+the graph is over the orchestrator hands it the journal's records and ends the graph while this
+process writes the bag; the resources of the graph's processes follow, then summary.json, bev.png,
+bev.gif and report.html. The outputs are those `write_outputs` writes in the orchestrator, byte for
+byte (a speculation that missed is re-simulated again).
+
+The process is tied to the orchestrator (setpriv's parent-death signal): a killed attack leaves
+nothing behind, and the journal makes the outputs again when the command runs again. Requests and
+answers are pickled over a socket pair; the process's own output goes to its log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import pickle
+import resource
+import socket
+import subprocess
+import sys
+from io import BufferedIOBase
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from advsim_ros.attack.checks import Preflight
+from advsim_ros.attack.options import AttackOptions
+from advsim_ros.core.journal import QueryRecord
+from advsim_ros.core.types import ActorTrack
+from advsim_ros.ros.launcher import die_with_parent, python_module_command
+from advsim_ros.ros.trace import Trace
+
+if TYPE_CHECKING:
+    from advsim_ros.attack.outputs import OutputsInputs
+
+
+class OutputsWorkerLostError(RuntimeError):
+    """The worker process ended without an answer (killed, out of memory): the caller writes the outputs itself."""
+
+
+class OutputsWorker:
+    """The orchestrator's end: start the process, tell it what to prepare, have it write the outputs."""
+
+    def __init__(self, options: AttackOptions, checked: Preflight, log: Path) -> None:
+        ours, theirs = socket.socketpair()
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "ab") as output:
+            command = die_with_parent(list(python_module_command(__name__, str(theirs.fileno()))))
+            self._process = subprocess.Popen(
+                command, pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=output, stderr=output
+            )
+        theirs.close()
+        self._socket = ours
+        self._stream = ours.makefile("rwb")
+        self._send("prepare", options, checked)
+
+    def speculate(self, tracks: tuple[ActorTrack, ...]) -> None:
+        """Re-simulate these tracks' sweeps now (the recorded query's, if the best searched query stays best)."""
+        self._send("speculate", tracks)
+
+    def start_writing(self, records: list[QueryRecord], journal_path: Path, wall_time: float, *rest: Any) -> None:
+        """Begin the outputs (`write_outputs`' arguments after the checks, resources aside): they come later."""
+        self._send("write", records, journal_path, wall_time, *rest)
+
+    def finish(self, resources: dict[str, Any]) -> tuple[dict[str, Any], float]:
+        """The graph's resources; returns the summary and the worker's peak resident memory [MB]."""
+        self._send("resources", resources)
+        try:
+            answer = pickle.load(self._stream)
+        except (EOFError, pickle.UnpicklingError, OSError) as error:
+            raise OutputsWorkerLostError(f"the outputs process ended ({self._process.wait()}): {error}") from None
+        if answer[0] == "error":
+            raise answer[1]
+        return answer[1], answer[2]
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):  # what is still buffered for a worker that is gone
+            self._stream.close()
+        self._socket.close()  # the worker reads the end of its requests and exits
+        try:
+            self._process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+
+    def _send(self, *request: Any) -> None:
+        try:
+            pickle.dump(request, self._stream)
+            self._stream.flush()
+        except OSError:  # the process is gone: finish() says so
+            pass
+
+
+def serve(stream: BufferedIOBase) -> None:
+    """The worker's loop: prepare, speculate and write as asked, in the order asked, until the socket closes."""
+    # here only: the orchestrator does not import the re-simulation (open3d) while its graph runs
+    from advsim_ros.attack.outputs import adversarial_sweeps, read_outputs_inputs, write_outputs
+
+    trace = Trace("advsim_outputs")  # ADVSIM_TRACE_DIR: when each step was done (bench/bench_attack.py)
+    options: AttackOptions | None = None
+    checked: Preflight | None = None
+    inputs: OutputsInputs | None = None
+    while True:
+        try:
+            request = pickle.load(stream)
+        except EOFError:
+            return
+        if request[0] == "prepare":
+            _, options, checked = request
+            inputs = read_outputs_inputs(checked)
+            import advsim_ros.viz.outputs  # noqa: F401  (the drawing's imports, off the outputs' clock)
+
+            trace("prepared")
+        elif request[0] == "speculate" and inputs is not None and checked is not None:
+            adversarial_sweeps(inputs, checked, request[1])
+            trace("speculated")
+            print("re-simulated the best searched query's sweeps ahead", flush=True)
+        elif request[0] == "write" and options is not None and checked is not None:
+            records, journal_path, wall_time, crashes, domain_id = request[1:]
+
+            def resources() -> dict[str, Any]:
+                answer = pickle.load(stream)
+                assert answer[0] == "resources", answer[0]
+                return dict(answer[1])
+
+            try:
+                summary = write_outputs(
+                    options, checked, records, journal_path, wall_time, crashes, domain_id, resources, inputs, fork=True
+                )
+                peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+                print(f"outputs written; sweeps re-simulated for {len(inputs.made) if inputs else 0} set(s) of tracks")
+                pickle.dump(("ok", summary, peak_mb), stream)
+            except Exception as error:  # the orchestrator raises it (user errors keep their one line)
+                pickle.dump(("error", error), stream)
+            stream.flush()
+            return
+
+
+def main() -> None:
+    with socket.socket(fileno=int(sys.argv[1])) as connection, connection.makefile("rwb") as stream:
+        serve(stream)
+
+
+if __name__ == "__main__":
+    main()
