@@ -334,6 +334,7 @@ def _run_graph(
             )
             for process in (*stack, *specs):
                 launcher.start(process)
+            trace("launched")
             lanes.append(Lane(launcher, monitor, stack, specs))
         crashes = follow(options, checked, lanes, journal, progress, _speculation(worker))
         used = {

@@ -145,6 +145,10 @@ def run_nodes(factories: Sequence[Callable[[], Node]]) -> None:
     exit_code = 0
     try:
         nodes.extend(factory() for factory in factories)
+        for node in nodes:  # start-up as bench/bench_attack.py splits it: imports, parameters, models
+            trace = getattr(node, "trace", None)  # the graph's nodes and the reference stacks
+            if isinstance(trace, Trace):
+                trace("ready")
         executor = SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
