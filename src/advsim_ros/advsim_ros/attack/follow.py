@@ -23,6 +23,7 @@ from advsim_ros.attack.options import AttackError, AttackOptions, StackSpec
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.attack_summary import StackCrash
 from advsim_ros.core.closed_loop import ControllerConfig
 from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.ros.launcher import Launcher, NodeSpec
@@ -81,7 +82,7 @@ def follow(
     lanes: Sequence[Lane],
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
-) -> list[dict[str, Any]]:
+) -> list[StackCrash]:
     """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code)."""
     clock = checked.window.clock(checked.scenario.frame_stamps_ns.tolist())
     decision_log = int(
@@ -91,7 +92,7 @@ def follow(
     def offset(query_id: int) -> int:
         return clock.to_sim(query_id, decision_log) - decision_log
 
-    crashes: list[dict[str, Any]] = []
+    crashes: list[StackCrash] = []
     first = lanes[0]
     replay_next = len(journal.records) if options.replay_only else -1
     connected_once = graph_written = False
@@ -154,7 +155,7 @@ def follow(
     return crashes
 
 
-def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[dict[str, Any]]) -> None:
+def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[StackCrash]) -> None:
     """Fail when a node of the lane's graph died; restart its stack when the stack did (or fail)."""
     graph_names = {spec.name for spec in lane.graph}
     stack_processes = {spec.name: spec for spec in lane.stack}

@@ -39,6 +39,7 @@ from advsim_ros.contract.scenario import cloud_msg
 from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.core.attack_summary import AttackSummary, ReplayRecord, Resources, StackCrash
 from advsim_ros.core.drivable import DrivableConfig
 from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.core.lidar.config import ResimConfig
@@ -59,10 +60,10 @@ def write_outputs(
     checked: Preflight,
     journal: Journal,
     wall_time: float,
-    crashes: list[dict[str, Any]],
+    crashes: list[StackCrash],
     domain_id: int | None,
-    resources: dict[str, Any],
-) -> dict[str, Any]:
+    resources: Resources,
+) -> AttackSummary:
     """Write the adversarial bag (attacks only), summary.json and bev.png (bev.gif and report.html too unless
     --no-visuals); return the summary."""
     from advsim_ros.viz.attack_view import load_attack_view
@@ -86,7 +87,7 @@ def write_outputs(
     reproduction = best.get("reproduction") if best else None
     recorded_fault = faults.get(recorded_id) if recorded_id is not None else None
     analysis["finding"] = finding(analysis, analysis["controls"], reproduction, recorded_fault)
-    summary: dict[str, Any] = {
+    summary: AttackSummary = {
         "scenario": {
             "bag": str(checked.bag),
             "scenario_id": checked.scenario.scenario_id,
@@ -131,7 +132,7 @@ def write_outputs(
             summary["recorded_inputs_reproduced"] = reproduced
     write_json_atomically(out_dir / "summary.json", summary)
     by_id = {record.query_id: record for record in records}
-    shown = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
+    shown = by_id.get(recorded_id) if recorded_id is not None else None
     if options.replay_only and records:
         shown = records[-1]
     # what the bag and the journal hold, not read back: the window (original and adversarial) and the shown plan
@@ -151,7 +152,7 @@ def _perturbed_actors(records: list[QueryRecord]) -> list[str]:
     return list(searched[0].actor_ids) if searched else []
 
 
-def _replay_runs(records: list[QueryRecord]) -> dict[str, Any]:
+def _replay_runs(records: list[QueryRecord]) -> ReplayRecord:
     values = [record.value for record in records]
     return {"runs": len(records), "adversarial_losses": [None if v != v else v for v in values]}
 

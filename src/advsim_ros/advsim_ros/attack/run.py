@@ -35,6 +35,7 @@ from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.attack_summary import AttackSummary, Resources, StackCrash, metric
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal
 from advsim_ros.core.renamed import RENAMED_ALGORITHMS
@@ -60,12 +61,12 @@ SEARCH = graph.SEARCH.name
 @dataclass
 class AttackResult:
     out_dir: Path
-    summary: dict[str, Any]
+    summary: AttackSummary
 
     @property
     def best_adversarial_loss(self) -> float | None:
         best = self.summary.get("best")
-        return None if best is None else float(best["score"]["adversarial_loss"])
+        return None if best is None else metric(best["score"], "adversarial_loss")
 
 
 def search_notes(options: AttackOptions) -> tuple[str, ...]:
@@ -255,7 +256,7 @@ def _run_locked(
     started = time.monotonic()
     trace = Trace("advsim_attack")
     trace("checked")
-    crashes: list[dict[str, Any]] = []
+    crashes: list[StackCrash] = []
     domain_id = None
     used: dict[str, dict[str, float]] = {}
     if not journal.finished:
@@ -265,7 +266,7 @@ def _run_locked(
     from advsim_ros.attack.outputs import write_outputs
 
     trace("graph_done")
-    resources = {
+    resources: Resources = {
         "processes": used,
         "graph_peak_rss_mb": sum(item["peak_rss_mb"] for item in used.values()),
         "graph_cpu_s": sum(item["cpu_s"] for item in used.values()),
@@ -282,7 +283,7 @@ def _run_graph(
     overrides_file: Path,
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
-) -> tuple[int, list[dict[str, Any]], dict[str, dict[str, float]]]:
+) -> tuple[int, list[StackCrash], dict[str, dict[str, float]]]:
     """Launch the graph (one per evaluation lane, each on a ROS domain of its own) and follow it to the end."""
     from advsim_ros.attack.follow import Lane, follow
     from advsim_ros.ros.lockstep import StackNames

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from advsim_ros.core.attack_summary import OutputsRecord
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag import BagConfig
 from advsim_ros.viz.animation import AnimationConfig, write_bev_animation
@@ -26,7 +27,7 @@ def write_viz_outputs(
     summary: Mapping[str, Any] | Path | None = None,
     animation: AnimationConfig | None = None,
     bag_config: BagConfig | None = None,
-) -> dict[str, str]:
+) -> OutputsRecord:
     """Write OUTDIR/bev.gif and OUTDIR/report.html from OUTDIR/adversarial; return their paths as summary.json's
     "outputs" names them.
 
@@ -41,7 +42,7 @@ def write_viz_outputs(
     return write_view_outputs(view, out_dir, animation)
 
 
-def write_view_outputs(view: AttackView, out_dir: Path, animation: AnimationConfig | None = None) -> dict[str, str]:
+def write_view_outputs(view: AttackView, out_dir: Path, animation: AnimationConfig | None = None) -> OutputsRecord:
     """OUTDIR/bev.gif and OUTDIR/report.html of an attack's view; their paths as summary.json's "outputs" names them."""
     write_bev_animation(view, out_dir / BEV_ANIMATION, animation)
     write_report(view, out_dir)
