@@ -10,10 +10,10 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterable, Mapping, Sequence
-from typing import TypedDict, cast
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import TypedDict, TypeVar, cast
 
-from advsim_ros.campaign.config import AttackPlan, FailureRule
+from advsim_ros.campaign.config import AttackPlan, CampaignError, FailureRule
 from advsim_ros.core.attack_summary import AttackSummary, Score, metric
 from advsim_ros.core.search.driver import NOT_SEARCHED
 
@@ -244,3 +244,66 @@ def to_csv(rows: Iterable[Mapping[str, object]], columns: Sequence[str]) -> str:
     for row in rows:
         writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})
     return stream.getvalue()
+
+
+# Reading results.csv and transfer.csv back: every cell is text; each column's parser turns it into the value
+# the row had (to_csv wrote NaN as '', a bool as True/False), each with what it expects for the error message.
+Parser = tuple[Callable[[str], object], str]
+_TEXT: Parser = (str, "text")
+_INT: Parser = (int, "an integer")
+_NUMBER: Parser = (lambda cell: math.nan if cell == "" else float(cell), "a number or empty (NaN)")
+_OPTIONAL: Parser = (lambda cell: None if cell == "" else float(cell), "a number or empty (not scored)")
+_YES_NO = {"True": True, "False": False}
+_BOOL: Parser = (lambda cell: _YES_NO[cell], "True or False")
+_FLAG: Parser = (lambda cell: "" if cell == "" else _YES_NO[cell], "True, False or empty (not measured)")
+_IDENTITY_INTS = ("window_start", "budget", "actors", "seed")
+_INTS = (*_IDENTITY_INTS, "queries", "failed_queries", "failure")
+_NUMBERS = (*(f"{p}_{name}" for p in ("original", "adversarial") for name in METRICS), "sim_gap_adversarial_loss",
+            "sim_gap_plan_l2_5s", "wall_s", "cpu_s", "peak_rss_mb")  # fmt: skip
+RESULTS_PARSERS: dict[str, Parser] = {
+    column: _INT if column in _INTS else _NUMBER if column in _NUMBERS else _TEXT for column in COLUMNS
+} | {"flaky": _BOOL, "original_flaky": _FLAG, "sim_dominated": _FLAG}
+TRANSFER_PARSERS: dict[str, Parser] = {column: _TEXT for column in TRANSFER_COLUMNS} | {
+    "collision_5s": _OPTIONAL,
+    "adversarial_loss": _OPTIONAL,
+}
+Row = TypeVar("Row", ResultsRow, TransferRow)
+
+
+def _parsed(cells: Mapping[str, str | None], parsers: Mapping[str, Parser], where: str) -> dict[str, object]:
+    row: dict[str, object] = {}
+    for column, (parse, expected) in parsers.items():
+        cell = cells.get(column)
+        if cell is None:
+            raise CampaignError(f"{where}: no {column} column")
+        try:
+            row[column] = parse(cell)
+        except (ValueError, KeyError):
+            raise CampaignError(f"{where}: {column} is {cell!r}, expected {expected}") from None
+    return row
+
+
+def parse_results_row(cells: Mapping[str, str | None], where: str = "results.csv") -> ResultsRow:
+    """A results.csv row (csv.DictReader's cells) as the row it was written from (NaN for ''); CampaignError naming
+    the column otherwise."""
+    return cast(ResultsRow, _parsed(cells, RESULTS_PARSERS, where))  # every column parsed to its ResultsRow type
+
+
+def parse_transfer_row(cells: Mapping[str, str | None], where: str = "transfer.csv") -> TransferRow:
+    """A transfer.csv row as the row it was written from ('' as None: not scored)."""
+    return cast(TransferRow, _parsed(cells, TRANSFER_PARSERS, where))  # every column parsed to its TransferRow type
+
+
+def _read_csv(text: str, name: str, parse: Callable[[Mapping[str, str | None], str], Row]) -> list[Row]:
+    reader = csv.DictReader(io.StringIO(text))
+    return [parse(cells, f"{name} line {reader.line_num}") for cells in reader]
+
+
+def read_results_csv(text: str) -> list[ResultsRow]:
+    """The rows of a results.csv (to_csv's text with COLUMNS)."""
+    return _read_csv(text, "results.csv", parse_results_row)
+
+
+def read_transfer_csv(text: str) -> list[TransferRow]:
+    """The rows of a transfer.csv (to_csv's text with TRANSFER_COLUMNS)."""
+    return _read_csv(text, "transfer.csv", parse_transfer_row)
