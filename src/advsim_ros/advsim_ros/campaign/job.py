@@ -12,10 +12,10 @@ import subprocess
 import sys
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Required, TypedDict, cast
+from typing import Required, TypedDict, cast
 
 from advsim_ros.campaign.results import ResultsRow, TransferRow
-from advsim_ros.campaign.worker import RESULT_NAME
+from advsim_ros.campaign.worker import RESULT_NAME, JobSpec
 from advsim_ros.core.atomic import write_json_atomically
 from advsim_ros.core.attack_summary import FindingRecord, Score
 from advsim_ros.ros.launcher import die_with_parent
@@ -41,8 +41,7 @@ def finished(result: Mapping[str, object]) -> JobOutcome:
     return cast(JobOutcome, {"ok": True, **result})
 
 
-# spec: the JOB.json campaign.schedule writes (its own format, keys by kind of job)
-def run_local_job(spec: dict[str, Any]) -> JobOutcome:
+def run_local_job(spec: JobSpec) -> JobOutcome:
     """The worker process for one job whose paths are this machine's, tied to this one; its result or its error."""
     out_dir = Path(spec["out_dir"])
     result_file = out_dir / RESULT_NAME

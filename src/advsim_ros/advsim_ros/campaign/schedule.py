@@ -29,6 +29,7 @@ from advsim_ros.campaign.journal import JOURNAL_NAME, AttackEntry, CampaignJourn
 from advsim_ros.campaign.results import TransferRow, failed_row, identity_of
 from advsim_ros.campaign.shipping import bring_back, run_shipped_job, ship_job
 from advsim_ros.campaign.storage import Storage, storage_uri
+from advsim_ros.campaign.worker import JobSpec
 from advsim_ros.io.bag import BagConfig
 from advsim_ros.ros.launcher import start_reaper
 from advsim_ros.ros.reaper import descendants, start_time
@@ -44,10 +45,10 @@ class Job:
     """One unit of work: an attack, or the replay of an attack's found scenario on another stack."""
 
     name: str  # journal key: attack/KEY or transfer/KEY/TARGET
-    spec: dict[str, Any]  # the worker's JOB.json
+    spec: JobSpec  # the worker's JOB.json
 
 
-def run_job(spec: dict[str, Any]) -> JobOutcome:
+def run_job(spec: JobSpec) -> JobOutcome:
     """Body of the Ray task: the worker process for one job, tied to this one; its result or its error."""
     if "storage" in spec:  # its inputs and outputs in the storage: fetched here, the job run here, sent back
         return run_shipped_job(spec)
@@ -146,7 +147,7 @@ def run_campaign(
     out_dir: Path,
     workers: int = 1,
     address: str | None = None,
-    progress: Callable[[dict[str, Any]], None] | None = None,
+    progress: Callable[[dict[str, int]], None] | None = None,
     note: Callable[[str], None] | None = None,
     bag_config: BagConfig | None = None,
     storage: str | None = None,
@@ -192,7 +193,7 @@ def run_campaign(
     uploaded: dict[Path, dict[str, str]] = {}  # inputs in the storage: path -> reference
     sending: dict[str, dict[str, float]] = {}  # what shipping each job in flight cost the driver
     try:
-        in_flight: dict[Any, Job] = {}
+        in_flight: dict[Any, Job] = {}  # by Ray's ObjectRef (Ray is untyped here)
         while todo or in_flight:
             while todo and len(in_flight) < workers:
                 job = todo.pop(0)

@@ -21,23 +21,22 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 from advsim_ros.campaign.job import JobOutcome, finished, run_local_job
 from advsim_ros.campaign.storage import Storage
-from advsim_ros.campaign.worker import RESULT_NAME
+from advsim_ros.campaign.worker import RESULT_NAME, JobSpec
 from advsim_ros.core.atomic import atomic_folder
 
 LOG_NAME = "job.log"
 
 
-def _params(entry: Any) -> list[str]:
+def _params(entry: object) -> list[str]:
     """The parameter files a `stacks` entry names (relative to the config's folder, or absolute)."""
     return [str(p) for p in entry.get("params") or ()] if isinstance(entry, dict) else []
 
 
-def ship_job(spec: dict[str, Any], storage: Storage, out_dir: Path, config_dir: Path,
-             uploaded: dict[Path, dict[str, str]]) -> dict[str, Any]:  # fmt: skip
+def ship_job(spec: JobSpec, storage: Storage, out_dir: Path, config_dir: Path,
+             uploaded: dict[Path, dict[str, str]]) -> JobSpec:  # fmt: skip
     """The job's spec with its inputs in the storage instead of driver paths (uploaded: each path's reference)."""
 
     def put(path: Path) -> dict[str, str]:
@@ -56,7 +55,7 @@ def ship_job(spec: dict[str, Any], storage: Storage, out_dir: Path, config_dir: 
     return {**shipped, "storage": storage.uri, "inputs": {"bag": bag, "params": params}}
 
 
-def run_shipped_job(spec: dict[str, Any]) -> JobOutcome:
+def run_shipped_job(spec: JobSpec) -> JobOutcome:
     """Body of the Ray task of a shipped job: its result (from the storage when it finished before) or its error."""
     storage = Storage(spec["storage"])
     relative = spec["relative_dir"]
@@ -106,7 +105,7 @@ def run_shipped_job(spec: dict[str, Any]) -> JobOutcome:
 
 
 def bring_back(
-    storage: Storage, spec: dict[str, Any], outcome: JobOutcome, out_dir: Path, sending: dict[str, float]
+    storage: Storage, spec: JobSpec, outcome: JobOutcome, out_dir: Path, sending: dict[str, float]
 ) -> JobOutcome:
     """Download a shipped job's folder into OUTDIR; its outcome with the bag and the log named there, and what
     shipping it cost (sending: the driver's uploads for it; the node's fetches and uploads; this download)."""

@@ -130,7 +130,7 @@ def read_index(suite: Path) -> tuple[FailureRule, list[SuiteScenario]]:
 
 def regress(
     suite: Path,
-    stack_entry: Any,
+    stack_entry: Any,  # a config `stacks` entry (a name or a mapping; config.stack_spec reads it)
     out_dir: Path,
     plan_timeout: float = 10.0,
     progress: Callable[[Verdict], None] | None = None,

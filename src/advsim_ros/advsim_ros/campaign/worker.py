@@ -29,6 +29,9 @@ from advsim_ros.core.attack_summary import AttackSummary, FindingRecord, Score, 
 from advsim_ros.io.bag import bag_layout_of
 
 RESULT_NAME = "job_result.json"
+# JOB.json, what campaign.schedule (and shipping, suite) hand the worker process: its keys depend on the kind of
+# job and it holds the config's own entries (a stack entry, parameter overrides), so it stays JSON here
+JobSpec: TypeAlias = dict[str, Any]
 
 
 class AttackJobResult(TypedDict):
@@ -62,8 +65,7 @@ def _cost(summary: AttackSummary, wall_s: float) -> dict[str, float]:
     }
 
 
-# job: the JOB.json campaign.schedule writes (its own format, keys by kind of job)
-def run_job(job: dict[str, Any]) -> JobResult:
+def run_job(job: JobSpec) -> JobResult:
     """Run the job described by job (see campaign.schedule) and return what goes into the campaign journal."""
     from advsim_ros.attack import AttackOptions, run_attack
 

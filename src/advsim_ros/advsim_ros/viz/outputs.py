@@ -6,11 +6,9 @@ Called by the attack after it wrote OUTDIR/adversarial, summary.json and bev.png
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
-from advsim_ros.core.attack_summary import OutputsRecord
+from advsim_ros.core.attack_summary import AttackSummary, OutputsRecord
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag import BagConfig
 from advsim_ros.viz.animation import AnimationConfig, write_bev_animation
@@ -24,7 +22,7 @@ REPORT = "report.html"
 
 def write_viz_outputs(
     out_dir: Path,
-    summary: Mapping[str, Any] | Path | None = None,
+    summary: AttackSummary | Path | None = None,
     animation: AnimationConfig | None = None,
     bag_config: BagConfig | None = None,
 ) -> OutputsRecord:
