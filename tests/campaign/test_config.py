@@ -14,6 +14,7 @@ import yaml
 
 from advsim_ros.campaign.config import AttackPlan, CampaignError, FailureRule, expand, load_campaign, materialize
 from advsim_ros.campaign.journal import CampaignJournal
+from advsim_ros.campaign.results import identity_of
 from advsim_ros.io.bag import write_scenario_bag
 from advsim_ros.io.synthetic import generate_synthetic_log
 
@@ -69,7 +70,7 @@ def test_both_loops_double_the_attacks_and_closed_loop_ones_say_so(bag: Path, tm
     assert {plan.key for plan in opened} == {plan.key for plan in expand(load_campaign(_write(tmp_path, _good(bag))))}
     assert all(plan.key.endswith("-closed") for plan in closed)
     assert closed[0].options(tmp_path / "c", tmp_path).loop == "closed"
-    assert closed[0].identity()["loop"] == "closed"
+    assert identity_of(closed[0])["loop"] == "closed"
     with pytest.raises(CampaignError, match="loops: expected open, closed or both"):
         load_campaign(_write(tmp_path, {**_good(bag), "loops": ["sideways"]}))
 

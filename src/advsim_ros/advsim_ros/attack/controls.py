@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
 from advsim_ros.attack.summary import Reproduction
 from advsim_ros.contract.plan import PLAN_STEP_NS
+from advsim_ros.core.attack_summary import AttackAnalysis, ControlsRecord, FindingRecord, ReproductionRecord, metric
 from advsim_ros.core.closed_loop import executed_as_plan
-from advsim_ros.core.fault import classify_collision
+from advsim_ros.core.fault import FaultRecord, classify_collision
 from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.metrics import MetricsConfig
 from advsim_ros.core.search.driver import IDENTITY, ORIGINAL
@@ -37,7 +37,7 @@ SIM_MARGIN = 2.0  # a finding must gain more than this many times what re-simula
 PLAN_GAP_AT_S = (3.0, 5.0)  # where the two plans of the controls are compared [s after the decision]
 
 
-def _finite(value: Any) -> float | None:
+def _finite(value: object) -> float | None:
     return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
 
 
@@ -67,7 +67,7 @@ def sim_gap(original: QueryRecord, identity: QueryRecord, decision_ns: int) -> d
     }
 
 
-def controls(records: Sequence[QueryRecord], decision_ns: int) -> dict[str, Any]:
+def controls(records: Sequence[QueryRecord], decision_ns: int) -> ControlsRecord:
     """The controls' part of summary.json: the original's re-runs, the identity control, their sim gap."""
     originals = tuple(sorted((r for r in records if r.algorithm == ORIGINAL), key=lambda r: r.query_id))
     identity = next((r for r in records if r.algorithm == IDENTITY), None)
@@ -89,7 +89,7 @@ def query_faults(
     decision_frame: int,
     metrics: MetricsConfig,
     drivable: DrivableArea | None,
-) -> dict[int, dict[str, Any]]:
+) -> dict[int, FaultRecord]:
     """Fault and avoidability of every colliding query, by query id (closed loop: of what the ego drove)."""
     decision_ns = int(scenario.frame_stamps_ns[decision_frame])
     horizon_ns = round(max(metrics.horizons) * 1e9)
@@ -107,18 +107,18 @@ def query_faults(
 
 
 def finding(
-    summary: dict[str, Any],
-    control: dict[str, Any],
-    reproduction: dict[str, Any] | None,
-    fault: dict[str, Any] | None = None,
-) -> dict[str, Any] | None:
+    summary: AttackAnalysis,
+    control: ControlsRecord,
+    reproduction: ReproductionRecord | None,
+    fault: FaultRecord | None = None,
+) -> FindingRecord | None:
     """What the recorded query shows and whether it counts as the stack's failure (None when nothing was found).
 
     ``fault``: the recorded query's fault and avoidability (query_faults), when it collides."""
     adversarial, original = summary.get("adversarial"), summary.get("original")
     if not adversarial or not original or adversarial.get("status") != "ok" or original.get("status") != "ok":
         return None
-    gain = float(adversarial["adversarial_loss"]) - float(original["adversarial_loss"])
+    gain = metric(adversarial, "adversarial_loss") - metric(original, "adversarial_loss")
     gap = control["sim_gap"]
     deviation = None if gap is None or gap["adversarial_loss"] is None else abs(gap["adversarial_loss"])
     collision = adversarial.get("collision_5s") == 1.0

@@ -29,6 +29,7 @@ from advsim_ros.attack.suggestion import ADAPTED_TYPES, suggested_profile
 from advsim_ros.contract import topics
 from advsim_ros.contract.qos import Durability, Reliability
 from advsim_ros.contract.topics import TopicSpec
+from advsim_ros.core.attack_summary import AttackSummary, Score
 
 REQUIRED = (topics.LIDAR, topics.PLAN)  # without these nothing can be attacked
 SUGGESTED_PROFILE = "suggested_profile.yaml"
@@ -209,7 +210,7 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
     previous = os.environ.get(TRACE_ENV)
     os.environ[TRACE_ENV] = str(trace_dir)
     error = ""
-    summary: dict[str, Any] = {}
+    summary: AttackSummary | None = None
     try:
         summary = run_attack(options).summary
     except AttackError as failure:
@@ -233,7 +234,8 @@ def run_doctor(options: AttackOptions) -> DoctorReport:
                    (topics.PREDICTIONS, outputs.predictions))  # fmt: skip
         best_effort = frozenset(spec.name for spec, output in answers if output.reliability == "best_effort")
     rows = topic_rows(nodes, options.stack.relayed(), expected, best_effort)  # renamed (rename mode): the contract's
-    score = (summary.get("queries") or [{}])[0].get("score", {}) if summary else {}
+    queries = summary["queries"] if summary is not None else []
+    score: Score = queries[0]["score"] if queries else {}
     timer = profile is not None and profile.timing.timer
     plans, sweeps = int(score.get("plans_received") or 0), int(score.get("sweeps_delivered") or 0)
     # a plan came back but could not be scored (NaN, empty, stamps, frame): the scorer's reason

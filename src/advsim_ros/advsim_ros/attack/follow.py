@@ -23,6 +23,7 @@ from advsim_ros.attack.options import AttackError, AttackOptions, StackSpec
 from advsim_ros.contract.codec import ContractError
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.attack_summary import StackCrash
 from advsim_ros.core.closed_loop import ControllerConfig
 from advsim_ros.core.journal import Journal, QueryRecord
 from advsim_ros.core.search.driver import NOT_SEARCHED, RERUN
@@ -83,7 +84,7 @@ def follow(
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
     on_searched: Callable[[Sequence[QueryRecord]], None] | None = None,
-) -> list[dict[str, Any]]:
+) -> list[StackCrash]:
     """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code).
 
     ``on_searched`` is called once with the journal's records when the search's own queries are all in it
@@ -96,7 +97,7 @@ def follow(
     def offset(query_id: int) -> int:
         return clock.to_sim(query_id, decision_log) - decision_log
 
-    crashes: list[dict[str, Any]] = []
+    crashes: list[StackCrash] = []
     first = lanes[0]
     replay_next = len(journal.records) if options.replay_only else -1
     connected_once = graph_written = False
@@ -168,7 +169,7 @@ def _search_done(records: Sequence[QueryRecord], queries: int) -> bool:
     return searched >= queries or any(record.algorithm == RERUN for record in records)
 
 
-def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[dict[str, Any]]) -> None:
+def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[StackCrash]) -> None:
     """Fail when a node of the lane's graph died; restart its stack when the stack did (or fail)."""
     graph_names = {spec.name for spec in lane.graph}
     stack_processes = {spec.name: spec for spec in lane.stack}

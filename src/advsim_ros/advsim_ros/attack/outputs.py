@@ -40,6 +40,7 @@ from advsim_ros.contract.scenario import cloud_msg
 from advsim_ros.contract.spatial import odometry_msgs
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.core.attack_summary import AttackSummary, ReplayRecord, Resources, StackCrash
 from advsim_ros.core.drivable import DrivableConfig
 from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.lidar.config import ResimConfig
@@ -85,12 +86,12 @@ def write_outputs(
     records: list[QueryRecord],
     journal_path: Path,
     wall_time: float,
-    crashes: list[dict[str, Any]],
+    crashes: list[StackCrash],
     domain_id: int | None,
-    resources: Callable[[], dict[str, Any]],
+    resources: Callable[[], Resources],
     inputs: OutputsInputs | None = None,
     fork: bool = False,
-) -> dict[str, Any]:
+) -> AttackSummary:
     """Write the adversarial bag (attacks only), summary.json and bev.png (bev.gif and report.html too unless
     --no-visuals); return the summary. ``resources`` is asked for once the bag is written (the graph's
     processes may end meanwhile); ``fork``: see write_view_figures."""
@@ -113,7 +114,7 @@ def write_outputs(
     reproduction = best.get("reproduction") if best else None
     recorded_fault = faults.get(recorded_id) if recorded_id is not None else None
     analysis["finding"] = finding(analysis, analysis["controls"], reproduction, recorded_fault)
-    summary: dict[str, Any] = {
+    summary: AttackSummary = {
         "scenario": {
             "bag": str(checked.bag),
             "scenario_id": checked.scenario.scenario_id,
@@ -135,7 +136,8 @@ def write_outputs(
         "verdict": attack_verdict(records, options.replay_only).as_json(),
         "stack_crashes": crashes,
         "wall_time_s": wall_time,
-        "resources": {},  # this run's processes (empty when the journal was finished before): below
+        # this run's processes, asked for once the bag is written (below): the place in summary.json kept here
+        "resources": Resources(processes={}, graph_peak_rss_mb=0.0, graph_cpu_s=0.0, orchestrator_peak_rss_mb=0.0),
         "ros_domain_id": domain_id,
         "outputs": {"journal": str(journal_path), "bev": str(out_dir / "bev.png")},
     }
@@ -155,7 +157,7 @@ def write_outputs(
     summary["resources"] = resources()
     write_json_atomically(out_dir / "summary.json", summary)
     by_id = {record.query_id: record for record in records}
-    shown = by_id.get(summary["recorded_query_id"]) if summary.get("recorded_query_id") is not None else None
+    shown = by_id.get(recorded_id) if recorded_id is not None else None
     if options.replay_only and records:
         shown = records[-1]
     # what the bag and the journal hold, not read back: the window (original and adversarial) and the shown plan
@@ -175,7 +177,7 @@ def _perturbed_actors(records: list[QueryRecord]) -> list[str]:
     return list(searched[0].actor_ids) if searched else []
 
 
-def _replay_runs(records: list[QueryRecord]) -> dict[str, Any]:
+def _replay_runs(records: list[QueryRecord]) -> ReplayRecord:
     values = [record.value for record in records]
     return {"runs": len(records), "adversarial_losses": [None if v != v else v for v in values]}
 

@@ -24,10 +24,11 @@ import subprocess
 import sys
 from io import BufferedIOBase
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from advsim_ros.attack.checks import Preflight
 from advsim_ros.attack.options import AttackOptions
+from advsim_ros.core.attack_summary import AttackSummary, Resources
 from advsim_ros.core.journal import QueryRecord
 from advsim_ros.core.types import ActorTrack
 from advsim_ros.ros.launcher import die_with_parent, python_module_command
@@ -65,8 +66,8 @@ class OutputsWorker:
         """Begin the outputs (`write_outputs`' arguments after the checks, resources aside): they come later."""
         self._send("write", records, journal_path, wall_time, *rest)
 
-    def finish(self, resources: dict[str, Any]) -> tuple[dict[str, Any], float]:
-        """The graph's resources; returns the summary and the worker's peak resident memory [MB]."""
+    def finish(self, resources: Resources) -> tuple[AttackSummary, float, float]:
+        """The graph's resources; returns the summary, the worker's peak resident memory [MB] and CPU time [s]."""
         self._send("resources", resources)
         try:
             answer = pickle.load(self._stream)
@@ -74,7 +75,7 @@ class OutputsWorker:
             raise OutputsWorkerLostError(f"the outputs process ended ({self._process.wait()}): {error}") from None
         if answer[0] == "error":
             raise answer[1]
-        return answer[1], answer[2]
+        return answer[1], answer[2], answer[3]
 
     def close(self) -> None:
         with contextlib.suppress(OSError):  # what is still buffered for a worker that is gone
@@ -121,18 +122,18 @@ def serve(stream: BufferedIOBase) -> None:
         elif request[0] == "write" and options is not None and checked is not None:
             records, journal_path, wall_time, crashes, domain_id = request[1:]
 
-            def resources() -> dict[str, Any]:
+            def resources() -> Resources:
                 answer = pickle.load(stream)
                 assert answer[0] == "resources", answer[0]
-                return dict(answer[1])
+                return cast(Resources, answer[1])  # the orchestrator's run._resources, pickled
 
             try:
                 summary = write_outputs(
                     options, checked, records, journal_path, wall_time, crashes, domain_id, resources, inputs, fork=True
                 )
-                peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+                used = resource.getrusage(resource.RUSAGE_SELF)
                 print(f"outputs written; sweeps re-simulated for {len(inputs.made) if inputs else 0} set(s) of tracks")
-                pickle.dump(("ok", summary, peak_mb), stream)
+                pickle.dump(("ok", summary, used.ru_maxrss / 1024.0, used.ru_utime + used.ru_stime), stream)
             except Exception as error:  # the orchestrator raises it (user errors keep their one line)
                 pickle.dump(("error", error), stream)
             stream.flush()

@@ -36,6 +36,7 @@ from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
 from advsim_ros.attack.summary import recorded_query
 from advsim_ros.core.atomic import write_json_atomically, write_text_atomically
+from advsim_ros.core.attack_summary import AttackSummary, Resources, metric
 from advsim_ros.core.digest import Digest
 from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
 from advsim_ros.core.renamed import RENAMED_ALGORITHMS
@@ -65,12 +66,12 @@ SEARCH = graph.SEARCH.name
 @dataclass
 class AttackResult:
     out_dir: Path
-    summary: dict[str, Any]
+    summary: AttackSummary
 
     @property
     def best_adversarial_loss(self) -> float | None:
         best = self.summary.get("best")
-        return None if best is None else float(best["score"]["adversarial_loss"])
+        return None if best is None else metric(best["score"], "adversarial_loss")
 
 
 def search_notes(options: AttackOptions) -> tuple[str, ...]:
@@ -279,7 +280,7 @@ def _run_locked(
     return AttackResult(out_dir, summary)
 
 
-def _resources(used: dict[str, dict[str, float]]) -> dict[str, Any]:
+def _resources(used: dict[str, dict[str, float]]) -> Resources:
     """summary.json's "resources": the graph's processes (none when the journal was finished before) and this one."""
     return {
         "processes": used,
@@ -298,7 +299,7 @@ def _run_graph(
     worker: OutputsWorker,
     started: float,
     trace: Trace,
-) -> dict[str, Any]:
+) -> AttackSummary:
     """Launch the graph (one per evaluation lane, each on a ROS domain of its own), follow it to the end and have
     the worker write the outputs (the bag while the graph's processes end); returns the summary."""
     from advsim_ros.attack.follow import Lane, follow
@@ -345,7 +346,7 @@ def _run_graph(
         trace("graph_done")
         worker.start_writing(journal.records, journal.path, time.monotonic() - started, crashes, domains[0])
     try:  # the graph's processes have ended meanwhile
-        summary, worker_peak_mb = worker.finish(_resources(used))
+        summary, worker_peak_mb, worker_cpu_s = worker.finish(_resources(used))
     except OutputsWorkerLostError:  # written here instead (the same files)
         from advsim_ros.attack.outputs import write_outputs
 
@@ -353,7 +354,8 @@ def _run_graph(
             options, checked, journal.records, journal.path, time.monotonic() - started, crashes, domains[0],
             lambda: _resources(used),
         )  # fmt: skip
-    summary["resources"]["outputs_peak_rss_mb"] = worker_peak_mb  # the worker's own figure, known only now
+    summary["resources"]["outputs_peak_rss_mb"] = worker_peak_mb  # the worker's own figures, known only now
+    summary["resources"]["outputs_cpu_s"] = worker_cpu_s
     write_json_atomically(options.out_dir.resolve() / "summary.json", summary)
     return summary
 

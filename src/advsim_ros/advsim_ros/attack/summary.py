@@ -12,8 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
+from advsim_ros.core.attack_summary import AttackAnalysis, BestQuery, QueryEntry, ReproductionRecord
 from advsim_ros.core.journal import QueryRecord, ranked_queries
 from advsim_ros.core.search.driver import NOT_SEARCHED, RERUN
 
@@ -41,7 +41,7 @@ class Reproduction:
         collisions = {record.score.get("collision_5s") for record in self.evaluations}
         return same_value and len(collisions) == 1
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> ReproductionRecord:
         values = self.values
         finite = [v for v in values if math.isfinite(v)]
         digests = {key: len({r.score.get(f"{key}_digest") for r in self.evaluations}) == 1 for key in ("input", "plan")}
@@ -70,7 +70,7 @@ def reproductions(records: Sequence[QueryRecord]) -> list[Reproduction]:
     return found
 
 
-def query_entry(record: QueryRecord) -> dict[str, Any]:
+def query_entry(record: QueryRecord) -> QueryEntry:
     return {
         "query_id": record.query_id,
         "algorithm": record.algorithm,
@@ -80,7 +80,7 @@ def query_entry(record: QueryRecord) -> dict[str, Any]:
     }
 
 
-def attack_summary(records: Sequence[QueryRecord]) -> dict[str, Any]:
+def attack_summary(records: Sequence[QueryRecord]) -> AttackAnalysis:
     """The analysis part of summary.json (see docs/outputs.md)."""
     by_id = {record.query_id: record for record in records}
     searched = [r for r in records if r.algorithm not in NOT_SEARCHED]
@@ -91,15 +91,14 @@ def attack_summary(records: Sequence[QueryRecord]) -> dict[str, Any]:
         ranked = ranked_queries({r.query_id: r.value for r in searched}, 1)
         best_record = by_id[ranked[0]] if ranked else None
     final = recorded_query(records)
-    best = None
+    best: BestQuery | None = None
     if best_record is not None:
-        best = query_entry(best_record)
         item = next((c for c in checked if c.query_id == best_record.query_id), None)
-        best["reproduction"] = item.as_json() if item is not None else None
+        best = {**query_entry(best_record), "reproduction": item.as_json() if item is not None else None}
     return {
-        "original": by_id[0].score if 0 in by_id else None,
+        "original": dict(by_id[0].score) if 0 in by_id else None,
         "best": best,
-        "adversarial": final.score if final is not None else None,
+        "adversarial": dict(final.score) if final is not None else None,
         "recorded_query_id": final.query_id if final is not None else None,
         "reproductions": [item.as_json() for item in checked],
         "flaky": [item.query_id for item in checked if not item.reproduced],
@@ -142,7 +141,7 @@ CLOSED_LOOP_ROWS = (
 )
 
 
-def comparison_table(summary: dict[str, Any]) -> str:
+def comparison_table(summary: AttackAnalysis) -> str:
     """The original and the adversarial scenario's scores side by side, as aligned text lines."""
     columns = (summary.get("original") or {}, summary.get("adversarial") or {})
     closed = any(column.get("loop") == "closed" for column in columns)

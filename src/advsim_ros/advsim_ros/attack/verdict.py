@@ -15,9 +15,9 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from advsim_ros.contract.enums import Status
+from advsim_ros.core.attack_summary import VerdictRecord
 from advsim_ros.core.journal import QueryRecord
 
 MAX_FAILED_SHARE = 0.5  # of the queries the stack was asked to answer
@@ -29,7 +29,7 @@ class Verdict:
     reason: str = ""  # one line saying why the work failed ('' when it did not)
     dominant_status: str = ""  # the failure status most queries ended with ('' when none failed)
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> VerdictRecord:
         return {"ok": self.ok, "reason": self.reason, "dominant_status": self.dominant_status}
 
 

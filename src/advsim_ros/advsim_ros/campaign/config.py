@@ -35,13 +35,14 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import yaml
 
 from advsim_ros import graph
 from advsim_ros.attack.checks import check_stack_command
 from advsim_ros.attack.options import AttackOptions, StackSpec, default_params_dir
+from advsim_ros.core.attack_summary import FindingRecord, Score, metric
 from advsim_ros.core.curation import CurationConfig, curate_windows, load_curation_config
 from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.objective import PRESET_NAMES
@@ -77,6 +78,13 @@ class ScenarioSource:
     bag_config: BagConfig | None = None  # the bag's layout (bag_params, --bag-params); None: the contract's
 
 
+class Found(TypedDict, total=False):
+    """What FailureRule.counts reads of a journal entry of an attack (campaign.journal.AttackEntry)."""
+
+    adversarial: Score | None
+    finding: FindingRecord | None
+
+
 @dataclass(frozen=True)
 class FailureRule:
     """Which adversarial scenarios count as failures (and go into the regression suite)."""
@@ -85,22 +93,22 @@ class FailureRule:
     adversarial_loss_above: float | None = None  # or L_adv above this value
     exclude: tuple[str, ...] = EXCLUSIONS  # a collision with any of these reasons is not the stack's failure
 
-    def excluded(self, finding: Mapping[str, Any] | None) -> list[str]:
+    def excluded(self, finding: FindingRecord | None) -> list[str]:
         """The reasons of a finding (attack.controls) this rule excludes it for, e.g. ['unavoidable: ...']."""
-        reasons = (finding or {}).get("excluded") or []
+        reasons = (finding.get("excluded") if finding else None) or []
         return [reason for reason in reasons if str(reason).split(":")[0] in self.exclude]
 
-    def counts(self, entry: Mapping[str, Any]) -> bool:
+    def counts(self, entry: Found) -> bool:
         """Whether a campaign journal entry of an attack holds a failure of its stack."""
         return self.failed(entry.get("adversarial"), entry.get("finding"))
 
-    def failed(self, score: Mapping[str, Any] | None, finding: Mapping[str, Any] | None = None) -> bool:
+    def failed(self, score: Mapping[str, object] | None, finding: FindingRecord | None = None) -> bool:
         if not score:
             return False
-        if self.collision and (score.get("collision_5s") or 0.0) > 0.5 and not self.excluded(finding):
+        if self.collision and metric(score, "collision_5s") > 0.5 and not self.excluded(finding):  # NaN: no
             return True
-        loss = score.get("adversarial_loss")
-        return self.adversarial_loss_above is not None and loss is not None and loss > self.adversarial_loss_above
+        loss = metric(score, "adversarial_loss")
+        return self.adversarial_loss_above is not None and loss > self.adversarial_loss_above
 
 
 @dataclass(frozen=True)
@@ -124,14 +132,6 @@ class AttackPlan:
     loop: str = "open"  # open (the paper's) or closed (the ego drives the stack's plans)
     reactive_actors: bool = False  # closed loop: moving vehicles react to the ego
     bag_params: Mapping[str, Any] | None = None  # the bag's layout (bag_layout_json); None: the contract's
-
-    def identity(self) -> dict[str, Any]:
-        """The IDENTITY columns of results.csv (and the bag)."""
-        return {
-            "attack": self.key, "scenario": self.scenario, "window_start": self.window_start, "stack": self.stack,
-            "algorithm": self.algorithm, "budget": self.budget, "actors": self.actors, "objective": self.objective,
-            "seed": self.seed, "loop": self.loop, "bag": self.bag,
-        }  # fmt: skip
 
     def as_json(self) -> dict[str, Any]:
         return {name: getattr(self, name) for name in self.__dataclass_fields__}

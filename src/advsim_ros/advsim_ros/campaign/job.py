@@ -10,20 +10,43 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Required, TypedDict, cast
 
-from advsim_ros.campaign.worker import RESULT_NAME
+from advsim_ros.campaign.results import ResultsRow, TransferRow
+from advsim_ros.campaign.worker import RESULT_NAME, JobSpec
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.core.attack_summary import FindingRecord, Score
 from advsim_ros.ros.launcher import die_with_parent
 
 
-def run_local_job(spec: dict[str, Any]) -> dict[str, Any]:
+class JobOutcome(TypedDict, total=False):
+    """What running a job gives the driver (through Ray): ok and its result (worker.JobResult's keys), or its
+    error; shipped jobs add what moving them cost. Less ok, it is the job's journal entry."""
+
+    ok: Required[bool]
+    error: str  # not ok: one line, naming the job's log
+    row: ResultsRow | TransferRow  # by the job's kind
+    curve: list[float]
+    adversarial: Score | None
+    bag: str | None
+    finding: FindingRecord | None
+    bag_params: Mapping[str, object]
+    shipping: dict[str, float]
+
+
+def finished(result: Mapping[str, object]) -> JobOutcome:
+    """The outcome of a finished job from its job_result.json (a worker.JobResult as JSON, which keeps its types)."""
+    return cast(JobOutcome, {"ok": True, **result})
+
+
+def run_local_job(spec: JobSpec) -> JobOutcome:
     """The worker process for one job whose paths are this machine's, tied to this one; its result or its error."""
     out_dir = Path(spec["out_dir"])
     result_file = out_dir / RESULT_NAME
     if result_file.is_file():  # finished before the driver could journal it
-        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
+        return finished(json.loads(result_file.read_text(encoding="utf-8")))
     out_dir.mkdir(parents=True, exist_ok=True)
     job_file = out_dir / "job.json"
     write_json_atomically(job_file, spec)
@@ -35,7 +58,7 @@ def run_local_job(spec: dict[str, Any]) -> dict[str, Any]:
             stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, check=False,
         )  # fmt: skip
     if completed.returncode == 0 and result_file.is_file():
-        return {"ok": True, **json.loads(result_file.read_text(encoding="utf-8"))}
+        return finished(json.loads(result_file.read_text(encoding="utf-8")))
     lines = (out_dir / "job.log").read_text(encoding="utf-8", errors="replace").strip().splitlines()
     reason = next((line for line in reversed(lines) if line.strip()), f"exit status {completed.returncode}")
     return {"ok": False, "error": f"{reason} (log: {out_dir / 'job.log'})"}

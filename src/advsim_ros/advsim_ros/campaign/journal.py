@@ -14,20 +14,52 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Literal, NotRequired, TypeAlias, TypedDict, cast, overload
 
 from advsim_ros.campaign.config import CampaignError
+from advsim_ros.campaign.results import ResultsRow, TransferRow
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.attack_summary import FindingRecord, Score
 from advsim_ros.core.renamed import canonical_algorithm
 
 JOURNAL_NAME = "campaign.jsonl"
 VERSION = 1
 
 
-def _entries(lines: list[bytes]) -> tuple[dict[str, dict[str, Any]], int]:
+class _Entry(TypedDict):
+    job: str  # attack/KEY or transfer/KEY/TARGET
+    error: NotRequired[str]  # the job failed: tried again when the campaign runs again
+    shipping: NotRequired[dict[str, float]]  # shipped jobs: bytes and seconds moving its inputs and outputs
+
+
+class AttackEntry(_Entry):
+    """A journal line of an attack job: its row, search curve and (finished ones) what it found."""
+
+    row: ResultsRow
+    curve: list[float]
+    adversarial: NotRequired[Score | None]
+    bag: NotRequired[str | None]  # its adversarial bag
+    finding: NotRequired[FindingRecord | None]
+    bag_params: NotRequired[Mapping[str, object]]  # the bag's layout (io.bag.bag_layout_json)
+
+
+class TransferEntry(_Entry):
+    """A journal line of a transfer job: a found scenario replayed on another stack."""
+
+    row: TransferRow
+
+
+JournalEntry: TypeAlias = AttackEntry | TransferEntry
+
+
+# a journal's entries as JSON gives them, before _renamed and _typed
+RawEntries: TypeAlias = dict[str, dict[str, object]]
+
+
+def _entries(lines: list[bytes]) -> tuple[RawEntries, int]:
     """The entries of a journal's lines after its header, and the length in bytes of what stands (a line torn by a
     kill in the middle of its write, and anything after it, does not)."""
-    entries: dict[str, dict[str, Any]] = {}
+    entries: RawEntries = {}
     good = len(lines[0]) + 1
     for line in lines[1:]:
         if line.strip():
@@ -40,7 +72,7 @@ def _entries(lines: list[bytes]) -> tuple[dict[str, dict[str, Any]], int]:
     return entries, good
 
 
-def _renamed(entries: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+def _renamed(entries: RawEntries) -> RawEntries:
     """Entries with a renamed algorithm under its name now: its rows' ``algorithm`` and the attack keys naming it
     (config.expand spells ``-{algorithm}{budget}-``), in attack and transfer jobs alike."""
     keys: dict[str, str] = {}
@@ -54,25 +86,40 @@ def _renamed(entries: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
                 keys[key] = key.replace(f"-{old}{budget}-", f"-{canonical_algorithm(old)}{budget}-", 1)
     if not keys:
         return entries
-    renamed: dict[str, dict[str, Any]] = {}
+    renamed: RawEntries = {}
     for job, entry in entries.items():
         kind, _, rest = job.partition("/")
         key, slash, target = rest.partition("/")
         if key in keys:
             job = f"{kind}/{keys[key]}{slash}{target}"
             entry = {**entry, "job": job}
-            if isinstance(entry.get("row"), dict):
-                entry["row"] = dict(entry["row"], attack=keys[key])
+            row = entry.get("row")
+            if isinstance(row, dict):
+                row = {**row, "attack": keys[key]}
                 if kind == "attack":
-                    entry["row"]["algorithm"] = canonical_algorithm(str(entry["row"]["algorithm"]))
+                    row["algorithm"] = canonical_algorithm(str(row["algorithm"]))
+                entry["row"] = row
         renamed[job] = entry
     return renamed
+
+
+def _typed(entries: RawEntries) -> dict[str, JournalEntry]:
+    # the journal's own lines: the driver appended each from a job's typed result (campaign.schedule), and JSON
+    # keeps those types, so they are taken as they are rather than checked field by field
+    return cast(dict[str, JournalEntry], entries)
+
+
+def attack_entry(entry: JournalEntry) -> AttackEntry:
+    """An entry of an attack job (its key says so)."""
+    if not entry["job"].startswith("attack/"):
+        raise ValueError(f"{entry['job']}: not an attack job")
+    return cast(AttackEntry, entry)  # the key names the job's kind, and with it its entry's type
 
 
 class CampaignJournal:
     """Finished jobs by key ("attack/KEY" or "transfer/KEY/TARGET"), in the order they finished."""
 
-    def __init__(self, path: Path, entries: dict[str, dict[str, Any]]) -> None:
+    def __init__(self, path: Path, entries: dict[str, JournalEntry]) -> None:
         self.path = path
         self.entries = entries
 
@@ -99,7 +146,7 @@ class CampaignJournal:
             with path.open("r+b") as stream:
                 stream.truncate(good)
                 os.fsync(stream.fileno())
-        return CampaignJournal(path, _renamed(entries))
+        return CampaignJournal(path, _typed(_renamed(entries)))
 
     @staticmethod
     def read(out_dir: Path) -> CampaignJournal:
@@ -113,24 +160,32 @@ class CampaignJournal:
             json.loads(lines[0])["campaign_journal"]
         except (ValueError, KeyError, TypeError):
             raise CampaignError(f"{path}: not a campaign journal") from None
-        return CampaignJournal(path, _renamed(_entries(lines)[0]))
+        return CampaignJournal(path, _typed(_renamed(_entries(lines)[0])))
 
     def __contains__(self, job: str) -> bool:
         """Finished without an error (a job that failed is tried again when the campaign is run again)."""
         return job in self.entries and "error" not in self.entries[job]
 
-    def append(self, job: str, result: Mapping[str, Any]) -> None:
+    def append(self, job: str, result: Mapping[str, object]) -> None:
+        """Journal a job's result (JobOutcome less ok: an AttackEntry's or TransferEntry's keys but job)."""
         if job in self:
             return
-        entry = {"job": job, **result}
+        entry = cast(JournalEntry, {"job": job, **result})
         with self.path.open("a", encoding="utf-8") as stream:
             stream.write(json.dumps(entry) + "\n")
             stream.flush()
             os.fsync(stream.fileno())
         self.entries[job] = entry
 
-    def of_kind(self, kind: str, finished: bool = True) -> list[dict[str, Any]]:
+    @overload
+    def of_kind(self, kind: Literal["attack"], finished: bool = True) -> list[AttackEntry]: ...
+    @overload
+    def of_kind(self, kind: Literal["transfer"], finished: bool = True) -> list[TransferEntry]: ...
+    def of_kind(self, kind: str, finished: bool = True) -> list[AttackEntry] | list[TransferEntry]:
         """Entries of one kind of job ("attack", "transfer"): finished ones, or (finished=False) every last entry."""
-        return [
+        chosen = [
             entry for job, entry in self.entries.items() if job.startswith(f"{kind}/") and (not finished or job in self)
         ]
+        if kind == "attack":
+            return [attack_entry(entry) for entry in chosen]
+        return cast(list[TransferEntry], chosen)  # the rest: the key names the job's kind and its entry's type

@@ -3,24 +3,32 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from advsim_ros.campaign.config import load_campaign
 from advsim_ros.campaign.journal import CampaignJournal
-from advsim_ros.campaign.report import write_report
+from advsim_ros.campaign.report import GalleryEntry, write_report
 from advsim_ros.campaign.suite import export_suite
 from advsim_ros.io.bag import BagConfig
 
 
+class CampaignOutputs(TypedDict):
+    suite: Path
+    suite_size: int  # scenarios in the suite
+    results_csv: Path
+    report_md: Path
+    report_html: Path
+
+
 def write_campaign_outputs(
     config: Path, out_dir: Path, journal: CampaignJournal, bag_config: BagConfig | None = None
-) -> dict[str, Any]:
+) -> CampaignOutputs:
     """OUTDIR/suite, results.csv, transfer.csv, report.md, report.html (each written atomically)."""
     campaign = load_campaign(config, bag_config)
     out_dir = out_dir.resolve()
     attacks = journal.of_kind("attack", finished=False)  # errors too: results.csv says which attacks failed
     suite = export_suite(out_dir, journal.of_kind("attack"), campaign.failure)
-    gallery = []
+    gallery: list[GalleryEntry] = []
     for entry in journal.of_kind("attack"):
         row = entry["row"]
         if not campaign.failure.counts(entry):

@@ -17,12 +17,12 @@ import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
 
 from advsim_ros.campaign.report_html import GalleryItem, Rates, Section, Table, collision_plot, curve_plot, render_html
-from advsim_ros.campaign.results import COLUMNS, TRANSFER_COLUMNS, to_csv
+from advsim_ros.campaign.results import COLUMNS, TRANSFER_COLUMNS, ResultsRow, TransferRow, to_csv
 from advsim_ros.campaign.stats import (
     DASH,
     GROUP_METRICS,
@@ -40,11 +40,20 @@ from advsim_ros.campaign.table2 import FAMILY_NOTE, STANDARD, applies, family_ta
 from advsim_ros.core.atomic import write_text_atomically
 
 
-def _sum_hours(rows: Iterable[Mapping[str, Any]], key: str) -> float:
+class GalleryEntry(TypedDict):
+    """A found failure for the report's gallery (campaign.outputs)."""
+
+    attack: str
+    bev_png: Path
+    bag: str  # relative to the campaign folder
+    title: NotRequired[str]  # default: the attack
+
+
+def _sum_hours(rows: Iterable[ResultsRow], key: str) -> float:
     return sum(v for v in (as_float(row.get(key)) for row in rows) if math.isfinite(v)) / 3600.0
 
 
-def table1(ok: Sequence[Mapping[str, Any]], stacks: Sequence[str], seed: int) -> tuple[Table, Rates]:
+def table1(ok: Sequence[ResultsRow], stacks: Sequence[str], seed: int) -> tuple[Table, Rates]:
     """Original vs adversarial per stack; also the collision rates (%) the bar plot draws."""
     rows: list[tuple[str, ...]] = []
     rates: dict[tuple[str, str, str], tuple[float, ...]] = {}  # (stack, scenario, "3s"|"5s") -> (mean, low, high) in %
@@ -65,7 +74,7 @@ def table1(ok: Sequence[Mapping[str, Any]], stacks: Sequence[str], seed: int) ->
     return Table(header, tuple(rows)), rates
 
 
-def excluded_table(ok: Sequence[Mapping[str, Any]]) -> Table | None:
+def excluded_table(ok: Sequence[ResultsRow]) -> Table | None:
     """The found collisions the failure rule does not count as the stack's failures, each with its reasons."""
     shown = [
         (str(row.get("attack")), str(row.get("stack")), str(row.get("excluded") or "").replace(";", ", "))
@@ -75,14 +84,14 @@ def excluded_table(ok: Sequence[Mapping[str, Any]]) -> Table | None:
     return Table(("attack", "stack", "not counted because"), tuple(shown)) if shown else None
 
 
-def _labelled(row: Mapping[str, Any]) -> Mapping[str, Any]:
+def _labelled(row: ResultsRow) -> ResultsRow:
     """A results row whose stack says so when it was attacked in closed loop."""
     if row.get("loop") != "closed":
         return row
     return {**row, "stack": f"{row.get('stack')} (closed loop)"}
 
 
-def loop_table(closed: Sequence[Mapping[str, Any]], seed: int) -> Table:
+def loop_table(closed: Sequence[ResultsRow], seed: int) -> Table:
     """Per stack and scenario: collision rates of the driven ego and of its decision plan, and the closest gap."""
     body = []
     for stack in levels(closed, "stack"):
@@ -96,7 +105,7 @@ def loop_table(closed: Sequence[Mapping[str, Any]], seed: int) -> Table:
     return Table(header, tuple(body))
 
 
-def table3(ok: Sequence[Mapping[str, Any]], transfers: Sequence[Mapping[str, Any]], seed: int) -> Table:
+def table3(ok: Sequence[ResultsRow], transfers: Sequence[TransferRow], seed: int) -> Table:
     """Source stack × target stack: collision rate (%) up to 5 s of the source's found scenarios on the target."""
     done = ok_rows(transfers)
     sources = levels(done, "source_stack")
@@ -105,20 +114,17 @@ def table3(ok: Sequence[Mapping[str, Any]], transfers: Sequence[Mapping[str, Any
     for source in sources:
         cells = [source]
         for target in targets:
-            replays = [t for t in done if str(t["source_stack"]) == source and str(t["target_stack"]) == target]
+            replays = [t["collision_5s"] for t in done if t["source_stack"] == source and t["target_stack"] == target]
             if not replays and source == target:  # the diagonal: the attacks' own result on the same scenarios
-                keys = {str(t.get("attack")) for t in done if str(t["source_stack"]) == source}
-                replays = [{"collision_5s": r.get("adversarial_collision_5s")} for r in ok
-                           if str(r.get("stack")) == source and str(r.get("attack")) in keys]  # fmt: skip
-            estimate = bootstrap_mean((t.get("collision_5s") for t in replays), seed)
+                keys = {t["attack"] for t in done if t["source_stack"] == source}
+                replays = [r["adversarial_collision_5s"] for r in ok if r["stack"] == source and r["attack"] in keys]
+            estimate = bootstrap_mean(replays, seed)
             cells.append(DASH if estimate.n == 0 else f"{100.0 * estimate.mean:.1f} (n={estimate.n})")
         rows.append(tuple(cells))
     return Table(("source \\ target", *targets), tuple(rows))
 
 
-def grouped(
-    rows: Sequence[Mapping[str, Any]], keys: Sequence[str], seed: int, labels: Sequence[str] | None = None
-) -> Table:
+def grouped(rows: Sequence[ResultsRow], keys: Sequence[str], seed: int, labels: Sequence[str] | None = None) -> Table:
     """Tables 4-6: the adversarial metrics of the finished attacks per value of ``keys`` (levels with none: '–')."""
     ok = ok_rows(rows)
     groups = sorted({tuple(str(row.get(k, "")) for k in keys) for row in rows}, key=lambda g: list(map(level_order, g)))
@@ -136,7 +142,7 @@ def grouped(
 
 
 def median_curves(
-    rows: Sequence[Mapping[str, Any]], curves: Mapping[str, Sequence[float]]
+    rows: Sequence[ResultsRow], curves: Mapping[str, Sequence[float]]
 ) -> dict[str, tuple[np.ndarray, int]]:
     """Per algorithm: the median over its attacks of best-L_adv-so-far at each query, and how many attacks.
 
@@ -180,7 +186,7 @@ def render_markdown(
 
 
 def _sections(
-    out_dir: Path, rows: Sequence[Mapping[str, Any]], transfers: Sequence[Mapping[str, Any]],
+    out_dir: Path, rows: Sequence[ResultsRow], transfers: Sequence[TransferRow],
     curves: Mapping[str, Sequence[float]], seed: int, written: dict[str, Path],
 ) -> list[Section]:  # fmt: skip
     """The report's sections, the figures saved on the way (their paths added to ``written``)."""
@@ -249,7 +255,7 @@ def _sections(
     return sections
 
 
-def _header(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def _header(rows: Sequence[ResultsRow]) -> list[str]:
     ok = ok_rows(rows)
     flaky = sum(1 for row in ok if truthy(row.get("flaky")))
     return [
@@ -262,10 +268,10 @@ def _header(rows: Sequence[Mapping[str, Any]]) -> list[str]:
 
 def write_report(
     out_dir: Path,
-    rows: Sequence[Mapping[str, Any]],
-    transfers: Sequence[Mapping[str, Any]],
+    rows: Sequence[ResultsRow],
+    transfers: Sequence[TransferRow],
     curves: Mapping[str, Sequence[float]],
-    gallery: Sequence[Mapping[str, Any]],
+    gallery: Sequence[GalleryEntry],
     seed: int = 0,
 ) -> dict[str, Path]:
     """Write results.csv, transfer.csv (when there are transfers), the figures, report.md and report.html;

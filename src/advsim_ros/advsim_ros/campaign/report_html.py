@@ -62,7 +62,7 @@ class GalleryItem:
     bag: str
 
 
-def _save(figure: Any, path: Path) -> None:
+def _save(figure: Any, path: Path) -> None:  # a matplotlib Figure (matplotlib: imported lazily, untyped here)
     """Save a figure atomically: a half-written PNG would break both report pages."""
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png")
@@ -70,7 +70,7 @@ def _save(figure: Any, path: Path) -> None:
         stream.write(buffer.getvalue())
 
 
-def _pyplot() -> Any:
+def _pyplot() -> Any:  # matplotlib.pyplot, imported lazily (a heavy import)
     import matplotlib
 
     matplotlib.use("Agg")

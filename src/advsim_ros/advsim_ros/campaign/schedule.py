@@ -24,11 +24,12 @@ from typing import Any
 
 from advsim_ros.attack.run import search_notes
 from advsim_ros.campaign.config import AttackPlan, Campaign, CampaignError, expand, load_campaign, materialize
-from advsim_ros.campaign.job import run_local_job
-from advsim_ros.campaign.journal import JOURNAL_NAME, CampaignJournal
-from advsim_ros.campaign.results import failed_row
+from advsim_ros.campaign.job import JobOutcome, run_local_job
+from advsim_ros.campaign.journal import JOURNAL_NAME, AttackEntry, CampaignJournal, attack_entry
+from advsim_ros.campaign.results import TransferRow, failed_row, identity_of
 from advsim_ros.campaign.shipping import bring_back, run_shipped_job, ship_job
 from advsim_ros.campaign.storage import Storage, storage_uri
+from advsim_ros.campaign.worker import JobSpec
 from advsim_ros.io.bag import BagConfig
 from advsim_ros.ros.launcher import start_reaper
 from advsim_ros.ros.reaper import descendants, start_time
@@ -44,10 +45,10 @@ class Job:
     """One unit of work: an attack, or the replay of an attack's found scenario on another stack."""
 
     name: str  # journal key: attack/KEY or transfer/KEY/TARGET
-    spec: dict[str, Any]  # the worker's JOB.json
+    spec: JobSpec  # the worker's JOB.json
 
 
-def run_job(spec: dict[str, Any]) -> dict[str, Any]:
+def run_job(spec: JobSpec) -> JobOutcome:
     """Body of the Ray task: the worker process for one job, tied to this one; its result or its error."""
     if "storage" in spec:  # its inputs and outputs in the storage: fetched here, the job run here, sent back
         return run_shipped_job(spec)
@@ -63,7 +64,7 @@ def _attack_job(plan: AttackPlan, out_dir: Path, config_dir: Path) -> Job:
     return Job(f"attack/{plan.key}", spec)
 
 
-def _transfer_jobs(campaign: Campaign, entry: dict[str, Any], out_dir: Path) -> Iterator[Job]:
+def _transfer_jobs(campaign: Campaign, entry: AttackEntry, out_dir: Path) -> Iterator[Job]:
     """Replays of a found failure on every other stack of the campaign."""
     row = entry["row"]
     if not campaign.transfer or not entry.get("bag") or not campaign.failure.counts(entry):
@@ -146,7 +147,7 @@ def run_campaign(
     out_dir: Path,
     workers: int = 1,
     address: str | None = None,
-    progress: Callable[[dict[str, Any]], None] | None = None,
+    progress: Callable[[dict[str, int]], None] | None = None,
     note: Callable[[str], None] | None = None,
     bag_config: BagConfig | None = None,
     storage: str | None = None,
@@ -192,7 +193,7 @@ def run_campaign(
     uploaded: dict[Path, dict[str, str]] = {}  # inputs in the storage: path -> reference
     sending: dict[str, dict[str, float]] = {}  # what shipping each job in flight cost the driver
     try:
-        in_flight: dict[Any, Job] = {}
+        in_flight: dict[Any, Job] = {}  # by Ray's ObjectRef (Ray is untyped here)
         while todo or in_flight:
             while todo and len(in_flight) < workers:
                 job = todo.pop(0)
@@ -206,18 +207,18 @@ def run_campaign(
             ready, _ = ray.wait(list(in_flight), num_returns=1)
             job = in_flight.pop(ready[0])
             try:
-                outcome = ray.get(ready[0])
+                outcome: JobOutcome = ray.get(ready[0])  # run_job's
             except ray.exceptions.RayError as error:  # its worker died (Ray's memory monitor, a crash): one job lost
                 outcome = {"ok": False, "error": f"Ray: {type(error).__name__}: {str(error).splitlines()[0]}"}
             if shipped is not None:
                 outcome = bring_back(shipped, job.spec, outcome, out_dir, sending.pop(job.name))
-            entry = _journal_entry(job, outcome)
-            journal.append(job.name, entry)
+            journal.append(job.name, _journal_entry(job, outcome))
             if job.spec["kind"] == "attack":
                 state["done" if outcome["ok"] else "errors"] += 1
+                entry = attack_entry(journal.entries[job.name])
                 if campaign.failure.counts(entry):
                     state["failures"] += 1
-                transfers = list(_transfer_jobs(campaign, journal.entries[job.name], out_dir))
+                transfers = list(_transfer_jobs(campaign, entry, out_dir))
                 todo.extend(transfers)
                 state["replays"] += len(transfers)
             else:
@@ -229,17 +230,18 @@ def run_campaign(
     return journal
 
 
-def _journal_entry(job: Job, outcome: dict[str, Any]) -> dict[str, Any]:
-    """What the journal keeps of a job; a job that failed keeps its error (and is tried again on resume)."""
+def _journal_entry(job: Job, outcome: JobOutcome) -> dict[str, object]:
+    """What the journal keeps of a job (its entry less its key); a job that failed keeps its error (and is tried
+    again on resume)."""
     if outcome["ok"]:
         return {k: v for k, v in outcome.items() if k != "ok"}
     spec = job.spec
     if spec["kind"] == "attack":
         plan = AttackPlan.from_json(spec["plan"])
-        row = failed_row(plan.identity(), outcome["error"], spec["relative_dir"])
+        row = failed_row(identity_of(plan), outcome["error"], spec["relative_dir"])
         return {"row": row, "curve": [], "error": outcome["error"]}
-    row = {
+    replayed: TransferRow = {
         "attack": spec["source"], "source_stack": spec["source_stack"], "target_stack": spec["target_stack"],
         "collision_5s": math.nan, "adversarial_loss": math.nan, "status": "failed", "out_dir": spec["relative_dir"],
     }  # fmt: skip
-    return {"row": row, "error": outcome["error"]}
+    return {"row": replayed, "error": outcome["error"]}

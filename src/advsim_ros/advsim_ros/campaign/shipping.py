@@ -21,23 +21,22 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
-from advsim_ros.campaign.job import run_local_job
+from advsim_ros.campaign.job import JobOutcome, finished, run_local_job
 from advsim_ros.campaign.storage import Storage
-from advsim_ros.campaign.worker import RESULT_NAME
+from advsim_ros.campaign.worker import RESULT_NAME, JobSpec
 from advsim_ros.core.atomic import atomic_folder
 
 LOG_NAME = "job.log"
 
 
-def _params(entry: Any) -> list[str]:
+def _params(entry: object) -> list[str]:
     """The parameter files a `stacks` entry names (relative to the config's folder, or absolute)."""
     return [str(p) for p in entry.get("params") or ()] if isinstance(entry, dict) else []
 
 
-def ship_job(spec: dict[str, Any], storage: Storage, out_dir: Path, config_dir: Path,
-             uploaded: dict[Path, dict[str, str]]) -> dict[str, Any]:  # fmt: skip
+def ship_job(spec: JobSpec, storage: Storage, out_dir: Path, config_dir: Path,
+             uploaded: dict[Path, dict[str, str]]) -> JobSpec:  # fmt: skip
     """The job's spec with its inputs in the storage instead of driver paths (uploaded: each path's reference)."""
 
     def put(path: Path) -> dict[str, str]:
@@ -56,12 +55,12 @@ def ship_job(spec: dict[str, Any], storage: Storage, out_dir: Path, config_dir: 
     return {**shipped, "storage": storage.uri, "inputs": {"bag": bag, "params": params}}
 
 
-def run_shipped_job(spec: dict[str, Any]) -> dict[str, Any]:
+def run_shipped_job(spec: JobSpec) -> JobOutcome:
     """Body of the Ray task of a shipped job: its result (from the storage when it finished before) or its error."""
     storage = Storage(spec["storage"])
     relative = spec["relative_dir"]
     if storage.exists(f"{relative}/{RESULT_NAME}"):  # finished before the driver could journal it
-        return {"ok": True, **storage.read_json(f"{relative}/{RESULT_NAME}")}
+        return finished(storage.read_json(f"{relative}/{RESULT_NAME}"))
     started = time.monotonic()
     scratch = Path(tempfile.mkdtemp(prefix="advsim-job-"))
     try:
@@ -89,11 +88,11 @@ def run_shipped_job(spec: dict[str, Any]) -> dict[str, Any]:
         storage.remove(relative)  # what an earlier try left there (its log goes on in this one's)
         storage.put_tree(out_dir, relative, skip=(RESULT_NAME,))
         if outcome["ok"]:
-            outcome.pop("ok")
-            if outcome.get("bag"):  # relative to the job's folder: bring_back puts it in OUTDIR
-                outcome["bag"] = Path(outcome["bag"]).relative_to(out_dir).as_posix()
-            storage.write_json(f"{relative}/{RESULT_NAME}", outcome)  # last: the job has finished
-            outcome = {"ok": True, **outcome}
+            result = {k: v for k, v in outcome.items() if k != "ok"}  # worker.JobResult, its keys in their order
+            if result.get("bag"):  # relative to the job's folder: bring_back puts it in OUTDIR
+                result["bag"] = Path(str(result["bag"])).relative_to(out_dir).as_posix()
+            storage.write_json(f"{relative}/{RESULT_NAME}", result)  # last: the job has finished
+            outcome = finished(result)
         else:
             outcome["error"] = str(outcome["error"]).replace(str(out_dir), f"{storage.uri.rstrip('/')}/{relative}")
         outcome["shipping"] = {
@@ -106,8 +105,8 @@ def run_shipped_job(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def bring_back(
-    storage: Storage, spec: dict[str, Any], outcome: dict[str, Any], out_dir: Path, sending: dict[str, float]
-) -> dict[str, Any]:
+    storage: Storage, spec: JobSpec, outcome: JobOutcome, out_dir: Path, sending: dict[str, float]
+) -> JobOutcome:
     """Download a shipped job's folder into OUTDIR; its outcome with the bag and the log named there, and what
     shipping it cost (sending: the driver's uploads for it; the node's fetches and uploads; this download)."""
     relative = spec["relative_dir"]
@@ -115,9 +114,9 @@ def bring_back(
     if storage.exists(relative):  # nothing when its Ray worker died before it uploaded anything
         with atomic_folder(out_dir / relative, overwrite=True) as staged:
             storage.get_tree(relative, staged)
-    outcome = dict(outcome)
+    outcome = outcome.copy()
     if outcome.get("bag"):
-        outcome["bag"] = str(out_dir / relative / outcome["bag"])
+        outcome["bag"] = str(out_dir / relative / str(outcome["bag"]))
     if "error" in outcome:
         outcome["error"] = str(outcome["error"]).replace(
             f"{storage.uri.rstrip('/')}/{relative}", str(out_dir / relative)

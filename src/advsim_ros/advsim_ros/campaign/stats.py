@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from typing import Any, NamedTuple
+from typing import NamedTuple, SupportsFloat, TypeVar
 
 import numpy as np
 
@@ -34,6 +34,7 @@ GROUP_METRICS: tuple[tuple[str, str, bool], ...] = (
     ("jerk", "adv. jerk [m/s³]", False),
 )
 DASH = "–"
+Row = TypeVar("Row", bound=Mapping[str, object])  # a results or transfer row (campaign.results), or a pooled one
 
 
 class Estimate(NamedTuple):
@@ -45,21 +46,23 @@ class Estimate(NamedTuple):
     n: int
 
 
-def as_float(value: Any) -> float:
+def as_float(value: object) -> float:
     """A cell as a float: None, '' (a CSV's NaN) and what does not parse are NaN."""
-    if isinstance(value, bool):
-        return float(value)
+    if not isinstance(value, str | SupportsFloat):  # None, a list, ...
+        return math.nan
     try:
         return float(value)
     except (TypeError, ValueError):
         return math.nan
 
 
-def truthy(value: Any) -> bool:
+def truthy(value: object) -> bool:
     return value.strip().lower() in ("1", "true", "yes") if isinstance(value, str) else bool(value)
 
 
-def bootstrap_mean(values: Iterable[Any], seed: int = 0, resamples: int = RESAMPLES, level: float = LEVEL) -> Estimate:
+def bootstrap_mean(
+    values: Iterable[object], seed: int = 0, resamples: int = RESAMPLES, level: float = LEVEL
+) -> Estimate:
     """Mean and percentile-bootstrap interval of the finite values; its own generator, so a cell's interval
     depends on the seed and its values only (not on which other cells the campaign has)."""
     data = np.array([v for v in map(as_float, values) if math.isfinite(v)], dtype=np.float64)
@@ -92,7 +95,7 @@ def cell(estimate: Estimate, percent: bool = False) -> str:
     return f"{show(estimate.mean * scale)} [{show(estimate.low * scale)}, {show(estimate.high * scale)}]"
 
 
-def ok_rows(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+def ok_rows(rows: Iterable[Row]) -> list[Row]:
     return [row for row in rows if row.get("status") == "ok"]
 
 
@@ -102,5 +105,5 @@ def level_order(value: str) -> tuple[int, float, str]:
     return (0, number, "") if math.isfinite(number) else (1, 0.0, value)
 
 
-def levels(rows: Iterable[Mapping[str, Any]], key: str) -> list[str]:
+def levels(rows: Iterable[Mapping[str, object]], key: str) -> list[str]:
     return sorted({str(row.get(key, "")) for row in rows}, key=level_order)

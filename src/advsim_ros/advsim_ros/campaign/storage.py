@@ -88,7 +88,7 @@ class Storage:
         self.received += len(data)
         return data
 
-    def read_json(self, key: str) -> Any:
+    def read_json(self, key: str) -> Any:  # a JSON document: its reader knows its format
         return json.loads(self.read_bytes(key))
 
     def write_bytes(self, key: str, data: bytes) -> None:
@@ -101,7 +101,7 @@ class Storage:
             self.fs.pipe_file(self._path(key), data)
         self.sent += len(data)
 
-    def write_json(self, key: str, document: Any) -> None:
+    def write_json(self, key: str, document: Any) -> None:  # any JSON document (json.dumps takes Any)
         self.write_bytes(key, json.dumps(document, indent=2).encode())
 
     def put_file(self, source: Path, key: str) -> None:

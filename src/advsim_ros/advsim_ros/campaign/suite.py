@@ -16,15 +16,43 @@ import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NotRequired, TypedDict, cast
 
 from advsim_ros.campaign.config import CampaignError, FailureRule
+from advsim_ros.campaign.journal import AttackEntry
+from advsim_ros.campaign.results import TransferRow
 from advsim_ros.core.atomic import atomic_folder, write_json_atomically, write_text_atomically
+from advsim_ros.core.attack_summary import FindingRecord, Score
 
 INDEX_NAME = "index.json"
 
 
-def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: FailureRule) -> Path:
+class FindingDigest(TypedDict):
+    """What a suite's index (or a report) says of a finding."""
+
+    reproduced: bool | None
+    original_flaky: bool | None
+    sim_dominated: bool | None
+    fault: str | None  # its class: avoidable | unavoidable
+    mover: str | None
+    side: str | None
+
+
+class SuiteScenario(TypedDict):
+    """One scenario of a suite's index.json: a found failure, its bag (a folder beside the index) and its score."""
+
+    name: str
+    bag: str
+    found_on: str  # the stack it was found on
+    scenario: str
+    window_start: int
+    algorithm: str
+    recorded: Score  # adversarial_loss, collision_3s, collision_5s of the recorded query
+    finding: FindingDigest | None
+    bag_params: NotRequired[Mapping[str, object]]  # the bag's layout (io.bag.bag_layout_json), if not the contract's
+
+
+def export_suite(out_dir: Path, attacks: Sequence[AttackEntry], rule: FailureRule) -> Path:
     """Copy every failing attack's adversarial bag into out_dir/suite and (re)write its index; the suite folder."""
     suite = out_dir / "suite"
     suite.mkdir(parents=True, exist_ok=True)
@@ -38,16 +66,17 @@ def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: Fail
         if not (target / "metadata.yaml").is_file():
             with atomic_folder(target, overwrite=True) as staged:
                 shutil.copytree(bag, staged)
-        recorded = entry["adversarial"]
-        scenarios.append(
-            {
-                "name": name, "bag": name, "found_on": row["stack"], "scenario": row["scenario"],
-                "window_start": row["window_start"], "algorithm": row["algorithm"],
-                "recorded": {k: recorded.get(k) for k in ("adversarial_loss", "collision_3s", "collision_5s")},
-                "finding": finding_digest(entry.get("finding")),
-                **({"bag_params": entry["bag_params"]} if entry.get("bag_params") else {}),  # the bag's layout
-            }
-        )  # fmt: skip
+        recorded = entry.get("adversarial") or {}  # a counted failure has its score
+        scenario: SuiteScenario = {
+            "name": name, "bag": name, "found_on": row["stack"], "scenario": row["scenario"],
+            "window_start": row["window_start"], "algorithm": row["algorithm"],
+            "recorded": {k: recorded.get(k) for k in ("adversarial_loss", "collision_3s", "collision_5s")},
+            "finding": finding_digest(entry.get("finding")),
+        }  # fmt: skip
+        layout = entry.get("bag_params")
+        if layout:  # the bag's layout
+            scenario["bag_params"] = layout
+        scenarios.append(scenario)
     index = {
         "suite_version": 1,
         "failure": {"collision": rule.collision, "adversarial_loss_above": rule.adversarial_loss_above},
@@ -57,19 +86,19 @@ def export_suite(out_dir: Path, attacks: Sequence[Mapping[str, Any]], rule: Fail
     return suite
 
 
-def finding_digest(finding: Mapping[str, Any] | None) -> dict[str, Any] | None:
+def finding_digest(finding: FindingRecord | None) -> FindingDigest | None:
     """What a suite (or a report) says of a finding: reproduced, controls, fault class and who moved into whom."""
     if not finding:
         return None
-    fault = finding.get("fault") or {}
-    contact = fault.get("contact") or {}
+    fault = finding.get("fault")
+    contact = fault.get("contact") if fault else None
     return {
         "reproduced": finding.get("reproduced"),
         "original_flaky": finding.get("original_flaky"),
         "sim_dominated": finding.get("sim_dominated"),
-        "fault": fault.get("class"),
-        "mover": contact.get("mover"),
-        "side": contact.get("side"),
+        "fault": fault.get("class") if fault else None,
+        "mover": contact.get("mover") if contact else None,
+        "side": contact.get("side") if contact else None,
     }
 
 
@@ -78,17 +107,17 @@ class Verdict:
     name: str
     outcome: str  # passed | failed | error
     message: str
-    score: Mapping[str, Any]
+    score: Mapping[str, float | None]  # collision_5s, adversarial_loss of the replay
     seconds: float
 
 
-def read_index(suite: Path) -> tuple[FailureRule, list[dict[str, Any]]]:
+def read_index(suite: Path) -> tuple[FailureRule, list[SuiteScenario]]:
     """The failure rule and scenarios of a suite; CampaignError when it is not one."""
     path = suite / INDEX_NAME
     try:
         index = json.loads(path.read_text(encoding="utf-8"))
         rule = FailureRule(bool(index["failure"]["collision"]), index["failure"]["adversarial_loss_above"])
-        scenarios = list(index["scenarios"])
+        scenarios: list[SuiteScenario] = list(index["scenarios"])  # export_suite's (JSON keeps their types)
     except OSError:
         raise CampaignError(f"{suite}: not a regression suite (no {INDEX_NAME})") from None
     except (ValueError, KeyError, TypeError):
@@ -101,7 +130,7 @@ def read_index(suite: Path) -> tuple[FailureRule, list[dict[str, Any]]]:
 
 def regress(
     suite: Path,
-    stack_entry: Any,
+    stack_entry: Any,  # a config `stacks` entry (a name or a mapping; config.stack_spec reads it)
     out_dir: Path,
     plan_timeout: float = 10.0,
     progress: Callable[[Verdict], None] | None = None,
@@ -125,7 +154,7 @@ def regress(
         if not outcome["ok"]:
             verdict = Verdict(scenario["name"], "error", outcome["error"], {}, seconds)
         else:
-            row = outcome["row"]
+            row = cast(TransferRow, outcome["row"])  # a transfer job's
             score = {"collision_5s": row["collision_5s"], "adversarial_loss": row["adversarial_loss"]}
             if row["status"] != "ok":
                 verdict = Verdict(

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 from advsim_ros.campaign.config import scene_family
 from advsim_ros.campaign.journal import CampaignJournal
 from advsim_ros.campaign.report_html import Table
+from advsim_ros.campaign.results import ResultsRow
 from advsim_ros.campaign.stats import GROUP_METRICS, TABLE1_METRICS, as_float, bootstrap_mean, cell
 
 STANDARD = "learned"
@@ -39,9 +39,15 @@ METRICS: tuple[tuple[str, str, bool], ...] = tuple(
 FAMILY_NOTE = "Scenes that collided within 5 s per scene family, adversarial / original of n."
 
 
-def campaign_rows(out_dirs: Iterable[Path]) -> list[dict[str, Any]]:
+class PooledRow(ResultsRow):
+    """A results row of one of several campaigns pooled into one table."""
+
+    campaign: str  # its campaign folder
+
+
+def campaign_rows(out_dirs: Iterable[Path]) -> list[PooledRow]:
     """The finished attacks' rows of campaign folders' journals, each with its ``campaign`` folder."""
-    rows = []
+    rows: list[PooledRow] = []
     for out_dir in out_dirs:
         for entry in CampaignJournal.read(Path(out_dir)).of_kind("attack"):
             row = entry.get("row")
@@ -50,7 +56,7 @@ def campaign_rows(out_dirs: Iterable[Path]) -> list[dict[str, Any]]:
     return rows
 
 
-def applies(rows: Iterable[Mapping[str, Any]]) -> bool:
+def applies(rows: Iterable[ResultsRow]) -> bool:
     """Whether Table 2 says something: the standard stack and at least one other one were attacked."""
     stacks = {str(row.get("stack")) for row in rows}
     return STANDARD in stacks and len(stacks) > 1
@@ -61,30 +67,30 @@ def applies(rows: Iterable[Mapping[str, Any]]) -> bool:
 PAIRED_BY = ("scenario", "window_start", "algorithm", "budget", "actors", "objective", "seed")
 
 
-def _scene(row: Mapping[str, Any]) -> tuple[str, ...]:
+def _scene(row: Mapping[str, object]) -> tuple[str, ...]:  # a ResultsRow, or a PooledRow with its campaign
     # pooled campaigns (another training seed's run) attack the same scenes with other stacks: pairs stay in theirs
     return (str(row.get("campaign", "")), *(str(row.get(key, "")) for key in PAIRED_BY))
 
 
-def paired_differences(rows: Sequence[Mapping[str, Any]], stack: str, metric: str) -> list[float]:
+def paired_differences(rows: Sequence[ResultsRow], stack: str, metric: str) -> list[float]:
     """``stack`` minus the standard stack on every scene both were attacked on, the same way (scene order)."""
-    standard = {_scene(row): as_float(row[metric]) for row in rows if row["stack"] == STANDARD}
-    other = {_scene(row): as_float(row[metric]) for row in rows if row["stack"] == stack}
+    standard = {_scene(row): as_float(row.get(metric)) for row in rows if row["stack"] == STANDARD}
+    other = {_scene(row): as_float(row.get(metric)) for row in rows if row["stack"] == stack}
     return [other[scene] - standard[scene] for scene in sorted(standard.keys() & other.keys())]
 
 
-def _stacks(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def _stacks(rows: Sequence[ResultsRow]) -> list[str]:
     return sorted({str(row["stack"]) for row in rows}, key=lambda name: (name != STANDARD, name))
 
 
-def table2(rows: Iterable[Mapping[str, Any]], seed: int = 0) -> Table:
+def table2(rows: Iterable[ResultsRow], seed: int = 0) -> Table:
     """One line per stack, the standard one first."""
     rows = list(rows)
     header = ("stack", "n", *(label for _, label, _ in METRICS), "Δ adversarial collision vs standard (paired)")
     body = []
     for stack in _stacks(rows):
         own = [row for row in rows if row["stack"] == stack]
-        cells = [cell(bootstrap_mean((row[key] for row in own), seed), percent) for key, _, percent in METRICS]
+        cells = [cell(bootstrap_mean((row.get(key) for row in own), seed), percent) for key, _, percent in METRICS]
         if stack == STANDARD:
             paired = "–"
         else:
@@ -94,11 +100,11 @@ def table2(rows: Iterable[Mapping[str, Any]], seed: int = 0) -> Table:
     return Table(header, tuple(body))
 
 
-def _collided(value: Any) -> bool:
+def _collided(value: float) -> bool:
     return as_float(value) > 0.0  # NaN (not measured) is not a collision
 
 
-def family_table(rows: Iterable[Mapping[str, Any]]) -> Table:
+def family_table(rows: Iterable[ResultsRow]) -> Table:
     """Per scene family and stack: scenes whose adversarial / original scenario collided within 5 s, of n."""
     rows = list(rows)
     stacks = _stacks(rows)
@@ -114,7 +120,7 @@ def family_table(rows: Iterable[Mapping[str, Any]]) -> Table:
     return Table(("family", *stacks), tuple(body))
 
 
-def table2_markdown(rows: Iterable[Mapping[str, Any]], seed: int = 0) -> str:
+def table2_markdown(rows: Iterable[ResultsRow], seed: int = 0) -> str:
     """Table 2 and the family table in Markdown, as `advsim campaign-table2` prints them."""
     rows = list(rows)
     return f"{table2(rows, seed).markdown()}\n\n{FAMILY_NOTE}\n\n{family_table(rows).markdown()}\n"

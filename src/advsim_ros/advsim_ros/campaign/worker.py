@@ -13,33 +13,61 @@ node (campaign.shipping) names their paths there under "local"; its plan keeps t
 from __future__ import annotations
 
 import json
+import math
 import resource
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NotRequired, TypeAlias, TypedDict
 
 from advsim_ros.campaign.config import AttackPlan, stack_spec
-from advsim_ros.campaign.results import attack_row, best_curve
+from advsim_ros.campaign.results import ResultsRow, TransferRow, attack_row, best_curve, identity_of
 from advsim_ros.core.atomic import write_json_atomically
+from advsim_ros.core.attack_summary import AttackSummary, FindingRecord, Score, metric
 from advsim_ros.io.bag import bag_layout_of
 
 RESULT_NAME = "job_result.json"
+# JOB.json, what campaign.schedule (and shipping, suite) hand the worker process: its keys depend on the kind of
+# job and it holds the config's own entries (a stack entry, parameter overrides), so it stays JSON here
+JobSpec: TypeAlias = dict[str, Any]
 
 
-def _cost(summary: dict[str, Any], wall_s: float) -> dict[str, float]:
-    """Wall time, CPU seconds and peak memory of the job: its graph's processes and this one."""
-    resources = summary.get("resources") or {}
+class AttackJobResult(TypedDict):
+    """OUT/job_result.json of an attack job."""
+
+    row: ResultsRow
+    curve: list[float]  # best L_adv after each searched query (results.best_curve)
+    adversarial: Score | None
+    bag: str | None  # the adversarial bag, when the attack recorded a query
+    finding: FindingRecord | None
+    bag_params: NotRequired[Mapping[str, object]]  # the bag's layout (io.bag.bag_layout_json), when not the contract's
+
+
+class TransferJobResult(TypedDict):
+    """OUT/job_result.json of a transfer job."""
+
+    row: TransferRow
+
+
+JobResult: TypeAlias = AttackJobResult | TransferJobResult
+
+
+def _cost(summary: AttackSummary, wall_s: float) -> dict[str, float]:
+    """Wall time, CPU seconds and peak memory of the job: its graph's processes, its outputs process and this one."""
+    resources = summary["resources"]
     own = resource.getrusage(resource.RUSAGE_SELF)
     return {
         "wall_s": wall_s,
-        "cpu_s": float(resources.get("graph_cpu_s", 0.0)) + own.ru_utime + own.ru_stime,
-        "peak_rss_mb": float(resources.get("graph_peak_rss_mb", 0.0)) + own.ru_maxrss / 1024.0,
+        "cpu_s": resources.get("graph_cpu_s", 0.0) + resources.get("outputs_cpu_s", 0.0) + own.ru_utime + own.ru_stime,
+        "peak_rss_mb": resources.get("graph_peak_rss_mb", 0.0)
+        + resources.get("outputs_peak_rss_mb", 0.0)
+        + own.ru_maxrss / 1024.0,
     }
 
 
-def run_job(job: dict[str, Any]) -> dict[str, Any]:
+def run_job(job: JobSpec) -> JobResult:
     """Run the job described by job (see campaign.schedule) and return what goes into the campaign journal."""
     from advsim_ros.attack import AttackOptions, run_attack
 
@@ -51,12 +79,14 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         local = job.get("local") or {}
         runnable = replace(plan, bag=local.get("bag", plan.bag), stack_entry=local.get("stack_entry", plan.stack_entry))
         summary = run_attack(runnable.options(out_dir, config_dir)).summary
-        row = attack_row(plan.identity(), summary, _cost(summary, time.monotonic() - started), job["relative_dir"])
-        bag = (summary.get("outputs") or {}).get("adversarial_bag")
-        finding = summary.get("finding")
-        layout = {"bag_params": plan.bag_params} if plan.bag_params is not None else {}  # adversarial/'s, too
-        return {"row": row, "curve": best_curve(summary), "adversarial": summary.get("adversarial"), "bag": bag,
-                "finding": finding, **layout}  # fmt: skip
+        row = attack_row(identity_of(plan), summary, _cost(summary, time.monotonic() - started), job["relative_dir"])
+        result: AttackJobResult = {
+            "row": row, "curve": best_curve(summary), "adversarial": summary.get("adversarial"),
+            "bag": summary["outputs"].get("adversarial_bag"), "finding": summary.get("finding"),
+        }  # fmt: skip
+        if plan.bag_params is not None:  # adversarial/'s layout, too
+            result["bag_params"] = plan.bag_params
+        return result
     options = AttackOptions(
         bag=Path(job["bag"]), out_dir=out_dir, stack=stack_spec(job["stack_entry"], config_dir), queries=0,
         window_start_frame=0, replay_only=True, plan_timeout=float(job["plan_timeout"]), visual_report=False,
@@ -65,13 +95,15 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
     )  # fmt: skip
     summary = run_attack(options).summary
     queries = summary.get("queries") or []
-    score = queries[-1]["score"] if queries else {}
-    row = {
+    score: Score = queries[-1]["score"] if queries else {}
+    collision, loss = metric(score, "collision_5s"), metric(score, "adversarial_loss")
+    replayed: TransferRow = {
         "attack": job["source"], "source_stack": job["source_stack"], "target_stack": job["target_stack"],
-        "collision_5s": score.get("collision_5s"), "adversarial_loss": score.get("adversarial_loss"),
-        "status": score.get("status", "failed"), "out_dir": job["relative_dir"],
+        "collision_5s": None if math.isnan(collision) else collision,  # null stays null (not scored)
+        "adversarial_loss": None if math.isnan(loss) else loss,
+        "status": str(score.get("status", "failed")), "out_dir": job["relative_dir"],
     }  # fmt: skip
-    return {"row": row}
+    return {"row": replayed}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,6 +19,7 @@ from advsim_ros.attack.follow import stack_log_tails
 from advsim_ros.attack.outputs import recorded_score
 from advsim_ros.attack.summary import comparison_table
 from advsim_ros.cli.common import CommandError
+from advsim_ros.core.attack_summary import AttackSummary
 from advsim_ros.core.renamed import RENAMED_ALGORITHMS
 from advsim_ros.core.search.registry import ALGORITHM_NAMES
 from advsim_ros.io.bag import add_bag_params_option, bag_params_config
@@ -288,10 +289,9 @@ def _attack_and_report(options: AttackOptions) -> int:
     return _exit_code(options, result.out_dir, summary)
 
 
-# summary: summary.json as attack/ builds it (attack.run types it dict[str, Any]: untyped JSON until it has a record)
-def _print_outputs(out_dir: Path, summary: dict[str, Any]) -> None:
+def _print_outputs(out_dir: Path, summary: AttackSummary) -> None:
     """Where to look: only the files this run left (a run whose queries failed has no adversarial bag or report)."""
-    outputs = summary.get("outputs", {})
+    outputs = summary["outputs"]
     looks = [(outputs.get("report"), "report"), (outputs.get("bev_animation"), "animation")]
     shown = [f"{path} ({what})" for path, what in looks if path and Path(path).exists()]
     if shown:
@@ -300,7 +300,7 @@ def _print_outputs(out_dir: Path, summary: dict[str, Any]) -> None:
     print(f"outputs: {'  '.join(str(path) for path in files if path and Path(path).exists())}")
 
 
-def _exit_code(options: AttackOptions, out_dir: Path, summary: dict[str, Any]) -> int:
+def _exit_code(options: AttackOptions, out_dir: Path, summary: AttackSummary) -> int:
     """0 when the work succeeded (attack.verdict); else one line saying why, the stack's log tail, exit code 1."""
     verdict = summary["verdict"]
     if verdict["ok"]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -63,14 +63,14 @@ class _Progress:
     def __init__(self) -> None:
         self.bars: list[tqdm] = []
 
-    # state: the campaign's progress counts (campaign.schedule passes them as a dict[str, Any])
-    def __call__(self, state: dict[str, Any]) -> None:
+    # state: the campaign's progress counts (campaign.schedule)
+    def __call__(self, state: dict[str, int]) -> None:
         bars = self.bars
         if not bars:
             bars.append(tqdm(total=state["attacks"], initial=state["done"], unit="attack", desc="campaign"))
         bar = bars[0]
         bar.update(state["done"] - bar.n)
-        shown = {"failures_found": state["failures"], "errors": state["errors"]}
+        shown: dict[str, int | str] = {"failures_found": state["failures"], "errors": state["errors"]}
         if state["replays"]:  # found failures replayed on the other stacks (transfer)
             shown["transfer_replays"] = f"{state['replayed']}/{state['replays']}"
         bar.set_postfix(shown)

@@ -28,7 +28,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -318,6 +318,32 @@ def _mover(ego_speed: float, actor_speed: float, into_speed: float) -> Mover:
     return Mover.EGO_INTO_ACTOR if ego_speed >= actor_speed else Mover.ACTOR_INTO_EGO
 
 
+class Candidates(TypedDict):
+    tried: int
+    within_limits: int
+    collision_free: int
+    in_lane_free: int
+
+
+class ContactRecord(TypedDict):
+    actor_id: str
+    perturbed: bool
+    time_s: float
+    side: str  # EgoSide's value
+    point_ego: list[float]
+    mover: str  # Mover's value: ego_into_actor | actor_into_ego | both
+    ego_speed: float
+    actor_speed: float
+    closing_speed: float
+
+
+# CollisionFault.as_json, as summary.json holds it ("class" is a keyword, hence the functional form)
+FaultRecord = TypedDict(
+    "FaultRecord",
+    {"class": str, "candidates": Candidates, "escape": str | None, "horizon_s": float, "contact": ContactRecord},
+)
+
+
 @dataclass(frozen=True)
 class CollisionFault:
     """Fault and avoidability of one colliding query."""
@@ -327,7 +353,7 @@ class CollisionFault:
     actor_id: str  # the actor of the first contact
     perturbed: bool  # whether the search moved that actor
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> FaultRecord:
         """A JSON-ready record (units in the keys' docs: docs/search.md, "Fault and avoidability")."""
         found, contact = self.avoidability, self.contact
         return {

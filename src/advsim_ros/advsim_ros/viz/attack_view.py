@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import cast
 
 import numpy as np
 
 from advsim_ros.contract import names, topics
 from advsim_ros.contract.plan import plan_from_path
 from advsim_ros.contract.protocol import perturbation_from_msg
+from advsim_ros.core.attack_summary import AttackSummary
 from advsim_ros.core.episode import WindowConfig
 from advsim_ros.core.journal import QueryRecord, read_records
 from advsim_ros.core.metrics import MetricsConfig
@@ -28,17 +28,17 @@ from advsim_ros.io.bag import BagConfig, BagReader, bag_layout_of, read_scenario
 from advsim_ros.viz.markers import first_collision_ns
 
 
-def load_summary(summary: Mapping[str, Any] | Path) -> dict[str, Any]:
-    """The summary as a dict: given, or read from summary.json (ScenarioError naming the file when unreadable)."""
-    if isinstance(summary, Mapping):
-        return dict(summary)
+def load_summary(summary: AttackSummary | Path) -> AttackSummary:
+    """The summary: given, or read from summary.json (ScenarioError naming the file when unreadable)."""
+    if not isinstance(summary, str | Path):
+        return summary.copy()
     try:
         loaded = json.loads(Path(summary).read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as error:
         raise ScenarioError(f"cannot read the attack summary {summary}: {error}") from None
     if not isinstance(loaded, dict) or "scenario" not in loaded:
         raise ScenarioError(f"{summary} is not an attack's summary.json (no 'scenario' key)")
-    return loaded
+    return cast(AttackSummary, loaded)  # attack.outputs wrote it from an AttackSummary; JSON keeps the types
 
 
 def bag_plan(bag: Path) -> Plan | None:
@@ -67,7 +67,7 @@ def bag_perturbed_ids(bag: Path) -> tuple[str, ...]:
 class AttackView:
     """One attack's outcome, original vs adversarial, over the attacked window (log time)."""
 
-    summary: dict[str, Any]
+    summary: AttackSummary
     bag: Path  # the adversarial scenario bag
     adversarial: Scenario  # the adversarial bag: the window, perturbed actors, the LiDAR the stack saw
     original: Scenario | None  # the same window of the source bag (logged actors and LiDAR); None when it is gone
@@ -90,7 +90,7 @@ class AttackView:
 
 def load_attack_view(
     bag: Path,
-    summary: Mapping[str, Any] | Path,
+    summary: AttackSummary | Path,
     bag_config: BagConfig | None = None,
     original: Scenario | None = None,
     written: tuple[Scenario, Plan | None] | None = None,
@@ -159,10 +159,10 @@ def _original_window(
     return cropped
 
 
-def _journaled_queries(summary: Mapping[str, Any]) -> tuple[QueryRecord | None, QueryRecord | None]:
+def _journaled_queries(summary: AttackSummary) -> tuple[QueryRecord | None, QueryRecord | None]:
     """Query 0 and the query the adversarial side shows (the recorded one; a replay's last run) from the
     journal the summary names; None for each the journal lacks or when it is gone."""
-    journal = Path(str((summary.get("outputs") or {}).get("journal", "")))
+    journal = Path(summary.get("outputs", {}).get("journal", ""))
     if not journal.is_file():
         return None, None
     records = read_records(journal)
@@ -173,7 +173,7 @@ def _journaled_queries(summary: Mapping[str, Any]) -> tuple[QueryRecord | None, 
     return by_id.get(0), by_id.get(recorded) if isinstance(recorded, int) else None
 
 
-def number(value: Any, digits: int = 3) -> str:
+def number(value: object, digits: int = 3) -> str:
     """A summary value for people: 'n/a' for missing or NaN, else `digits` significant figures."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"

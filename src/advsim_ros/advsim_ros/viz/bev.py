@@ -16,10 +16,11 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
+from advsim_ros.core.attack_summary import Score
 from advsim_ros.core.geometry import box_corners
 from advsim_ros.core.metrics import plan_from_decision
 from advsim_ros.core.types import ActorTrack, FloatArray, Plan, Scenario, ScenarioError
@@ -27,8 +28,10 @@ from advsim_ros.viz.attack_view import AttackView, number
 from advsim_ros.viz.markers import plan_pose_at
 
 NS_PER_S = 1e9
+# a matplotlib figure, axis, text or patch: matplotlib is imported lazily (a heavy import), its objects untyped here
+Artist: TypeAlias = Any
 # (stamp, whether to show the first collision already) -> (artists that moved, the panel's title)
-PanelUpdate = Callable[[int, bool], tuple[list[Any], Any]]
+PanelUpdate = Callable[[int, bool], tuple[list[Artist], Artist]]
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,7 @@ class _Panel:
     scenario: Scenario
     plan: Plan | None
     collision_ns: int | None
-    score: dict[str, Any] | None
+    score: Score | None
     driven: FloatArray | None  # closed loop: what the ego drove (K, 2) [m]
     reacted: Sequence[ActorTrack]  # closed loop: reactive actors' drives
 
@@ -67,12 +70,12 @@ class _Panel:
 class BevFigure:
     """A drawn bird's-eye view: the matplotlib figure, one update per panel, the heading's moving texts."""
 
-    figure: Any
+    figure: Artist
     updates: list[PanelUpdate]
-    clock: Any  # "t = ... s from the decision" (left)
-    phase: Any  # history or plan (right)
+    clock: Artist  # "t = ... s from the decision" (left)
+    phase: Artist  # history or plan (right)
 
-    def texts(self, titles: Sequence[Any]) -> tuple[Any, ...]:
+    def texts(self, titles: Sequence[Artist]) -> tuple[Artist, ...]:
         return (self.clock, self.phase, *titles)
 
     def heading(self, stamp: int, decision_ns: int) -> None:
@@ -161,11 +164,11 @@ class TextStamps:
     """Draws animated texts, each look once: rasterising glyphs was most of a frame's cost (a title
     changes twice in a window), so a text seen before is pasted from the pixels it drew then."""
 
-    def __init__(self, figure: Any) -> None:
+    def __init__(self, figure: Artist) -> None:
         self.figure = figure
-        self.drawn: dict[tuple[int, str, str], Any] = {}
+        self.drawn: dict[tuple[int, str, str], Artist] = {}
 
-    def draw(self, text: Any) -> None:
+    def draw(self, text: Artist) -> None:
         key = (id(text), text.get_text(), str(text.get_color()))
         region = self.drawn.get(key)
         canvas = self.figure.canvas
@@ -239,7 +242,7 @@ def _title(panel: _Panel) -> str:
     return f"{panel.title}: {text}"
 
 
-def _draw_panel(axis: Any, panel: _Panel, view: AttackView, look: BevLook) -> PanelUpdate:
+def _draw_panel(axis: Artist, panel: _Panel, view: AttackView, look: BevLook) -> PanelUpdate:
     """Draw the static parts of a panel; return the function that moves its dynamic parts to a stamp."""
     from matplotlib.patches import Polygon
 
@@ -257,7 +260,7 @@ def _draw_panel(axis: Any, panel: _Panel, view: AttackView, look: BevLook) -> Pa
         label = "reacted actors (closed loop)" if index == 0 else None
         axis.plot(*track.centers[:, :2].T, color="tab:purple", lw=1.5, zorder=3, label=label)
         axis.plot(*track.centers[-1, :2], "o", color="tab:purple", ms=3, zorder=3)  # where it ended up
-    boxes: list[tuple[Any, list[int], Any]] = []
+    boxes: list[tuple[Artist, list[int], Artist]] = []
     for actor in scenario.actors:
         perturbed = actor.actor_id in moved
         color = "tab:red" if perturbed else "tab:blue"
@@ -285,7 +288,7 @@ def _draw_panel(axis: Any, panel: _Panel, view: AttackView, look: BevLook) -> Pa
         else None
     )
 
-    def update(stamp: int, show_collision: bool = False) -> tuple[list[Any], Any]:
+    def update(stamp: int, show_collision: bool = False) -> tuple[list[Artist], Artist]:
         lidar.set_offsets(_lidar_world(scenario, stamp, decision_ns, look.max_points))
         for patch, actor_stamps, actor in boxes:
             try:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
 from advsim_ros.io.bag import add_bag_params_option, bag_params_config
 
@@ -18,7 +17,7 @@ def add_viz_commands(subparsers: argparse._SubParsersAction[argparse.ArgumentPar
     report.set_defaults(run=_run_report)
 
 
-def _run_report(args: Any) -> int:
+def _run_report(args: argparse.Namespace) -> int:
     from advsim_ros.viz.outputs import write_viz_outputs
 
     bag_config = bag_params_config(args.bag_params)  # else the layout the attack recorded in summary.json

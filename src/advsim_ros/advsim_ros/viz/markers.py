@@ -21,12 +21,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract import codec, names, qos
-from advsim_ros.contract.codec import header_msg, message
+from advsim_ros.contract.codec import Msg, header_msg, message
 from advsim_ros.contract.topics import TopicSpec
 from advsim_ros.core.futures import ActorFutures, actor_futures_at
 from advsim_ros.core.metrics import MetricsConfig, collision_steps, plan_from_decision
@@ -66,15 +65,15 @@ class StackOutputs:
     predictions: tuple[ActorTrack, ...] = ()  # future states per predicted actor, empty when it gave none
 
 
-def _color(rgba: Rgba) -> Any:
+def _color(rgba: Rgba) -> Msg:
     return message("std_msgs/msg/ColorRGBA", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
 
 
-def _point(x: float, y: float, z: float) -> Any:
+def _point(x: float, y: float, z: float) -> Msg:
     return message(names.POINT, x=float(x), y=float(y), z=float(z))
 
 
-def _pose(x: float, y: float, z: float, yaw: float) -> Any:
+def _pose(x: float, y: float, z: float, yaw: float) -> Msg:
     orientation = message(names.QUATERNION, x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
     return message(names.POSE, position=_point(x, y, z), orientation=orientation)
 
@@ -87,12 +86,12 @@ def _marker(
     kind: int,
     *,
     action: int = ADD,
-    pose: Any = None,
+    pose: Msg = None,
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0),
     color: Rgba = TEXT_COLOR,
-    points: Sequence[Any] = (),
+    points: Sequence[Msg] = (),
     text: str = "",
-) -> Any:
+) -> Msg:
     """One visualization_msgs/Marker with every field set (rosbags messages have no defaults)."""
     return message(
         "visualization_msgs/msg/Marker",
@@ -125,10 +124,10 @@ class _ArrayBuilder:
 
     def __init__(self, stamp: int, frame_id: str) -> None:
         self.stamp, self.frame_id = stamp, frame_id
-        self.markers: list[Any] = [_marker(stamp, frame_id, "", 0, CUBE, action=DELETEALL)]
+        self.markers: list[Msg] = [_marker(stamp, frame_id, "", 0, CUBE, action=DELETEALL)]
         self._next: dict[str, int] = {}
 
-    def add(self, namespace: str, kind: int, **fields: Any) -> None:
+    def add(self, namespace: str, kind: int, **fields: Msg) -> None:
         marker_id = self._next.get(namespace, 0)
         self._next[namespace] = marker_id + 1
         self.markers.append(_marker(self.stamp, self.frame_id, namespace, marker_id, kind, **fields))

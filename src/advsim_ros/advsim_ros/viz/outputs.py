@@ -9,10 +9,9 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
+from advsim_ros.core.attack_summary import AttackSummary, OutputsRecord
 from advsim_ros.core.types import ScenarioError
 from advsim_ros.io.bag import BagConfig
 from advsim_ros.viz.animation import AnimationConfig, write_bev_animation
@@ -28,10 +27,10 @@ _PR_SET_PDEATHSIG = 1  # prctl(2)
 
 def write_viz_outputs(
     out_dir: Path,
-    summary: Mapping[str, Any] | Path | None = None,
+    summary: AttackSummary | Path | None = None,
     animation: AnimationConfig | None = None,
     bag_config: BagConfig | None = None,
-) -> dict[str, str]:
+) -> OutputsRecord:
     """Write OUTDIR/bev.gif and OUTDIR/report.html from OUTDIR/adversarial; return their paths as summary.json's
     "outputs" names them.
 
@@ -46,7 +45,7 @@ def write_viz_outputs(
     return write_view_outputs(view, out_dir, animation)
 
 
-def write_view_figures(view: AttackView, out_dir: Path, visuals: bool, fork: bool = False) -> dict[str, str]:
+def write_view_figures(view: AttackView, out_dir: Path, visuals: bool, fork: bool = False) -> OutputsRecord:
     """OUTDIR/bev.png, and with ``visuals`` bev.gif and report.html (their paths returned as write_view_outputs').
 
     ``fork``: bev.png is drawn by a child process while this one draws the rest (only in a process without
@@ -74,7 +73,7 @@ def write_view_figures(view: AttackView, out_dir: Path, visuals: bool, fork: boo
     return written
 
 
-def write_view_outputs(view: AttackView, out_dir: Path, animation: AnimationConfig | None = None) -> dict[str, str]:
+def write_view_outputs(view: AttackView, out_dir: Path, animation: AnimationConfig | None = None) -> OutputsRecord:
     """OUTDIR/bev.gif and OUTDIR/report.html of an attack's view; their paths as summary.json's "outputs" names them."""
     write_bev_animation(view, out_dir / BEV_ANIMATION, animation)
     write_report(view, out_dir)

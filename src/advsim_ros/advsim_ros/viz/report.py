@@ -15,12 +15,12 @@ import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from advsim_ros.contract.tracks import TrackRecord
 from advsim_ros.core.atomic import write_text_atomically
+from advsim_ros.core.attack_summary import AttackSummary, QueryEntry, Score
 from advsim_ros.core.search.driver import NOT_SEARCHED
 from advsim_ros.core.types import ActorTrack
 from advsim_ros.viz.attack_view import AttackView, number
@@ -75,7 +75,7 @@ document.body.setAttribute('data-ready', 'yes');
 """
 
 
-def esc(value: Any) -> str:
+def esc(value: object) -> str:
     return html.escape(str(value), quote=True)
 
 
@@ -99,7 +99,7 @@ def html_table(
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
-def history_svg(queries: Sequence[Mapping[str, Any]]) -> str:
+def history_svg(queries: Sequence[QueryEntry]) -> str:
     """The query history as inline SVG: L_adv of every query (failed ones at the bottom) and the best so far."""
     import matplotlib
 
@@ -177,9 +177,7 @@ def _actor_rows(view: AttackView) -> list[list[str]]:
     return rows
 
 
-def _metric_rows(
-    original: Mapping[str, Any] | None, adversarial: Mapping[str, Any] | None
-) -> tuple[list[list[str]], list[list[str]]]:
+def _metric_rows(original: Score | None, adversarial: Score | None) -> tuple[list[list[str]], list[list[str]]]:
     rows, classes = [], []
     for key, label, unit in METRIC_ROWS:
         a = (original or {}).get(key)
@@ -212,28 +210,30 @@ def _verdict(view: AttackView) -> tuple[str, bool]:
     )
 
 
-def _yes(value: Any) -> str:
+def _yes(value: bool | None) -> str:
     return "-" if value is None else ("yes" if value else "no")
 
 
-def finding_rows(summary: Mapping[str, Any]) -> tuple[list[list[str]], str]:
+def finding_rows(summary: AttackSummary) -> tuple[list[list[str]], str]:
     """The controls and the class of the finding (attack.controls), as table rows, and the one-line conclusion."""
-    controls = summary.get("controls") or {}
-    found = summary.get("finding") or {}
-    gap = controls.get("sim_gap") or {}
-    original = controls.get("original") or {}
-    fault = found.get("fault") or {}
-    contact = fault.get("contact") or {}
+    controls, found = summary.get("controls"), summary.get("finding")
+    gap = (controls.get("sim_gap") if controls else None) or {}
+    original = controls.get("original") if controls else None
+    fault = found.get("fault") if found else None
+    contact: Mapping[str, object] = (fault.get("contact") if fault else None) or {}
     rows = [
-        ["the found scenario reproduced when re-run", _yes(found.get("reproduced"))],
+        ["the found scenario reproduced when re-run", _yes(found.get("reproduced") if found else None)],
         ["the original reproduced when re-run", _yes(None if not original else original.get("reproduced"))],
         ["identity control: L_adv minus the original's", number(gap.get("adversarial_loss"), 4)],
         [
             "identity control: plan moved at 3 s / 5 s [m]",
             f"{number(gap.get('plan_l2_3s'))} / {number(gap.get('plan_l2_5s'))}",
         ],
-        ["gain of the finding over the original (L_adv)", number(found.get("gain"), 4)],
-        ["sim-dominated (gain within the margin of the identity control)", _yes(found.get("sim_dominated"))],
+        ["gain of the finding over the original (L_adv)", number(found.get("gain") if found else None, 4)],
+        [
+            "sim-dominated (gain within the margin of the identity control)",
+            _yes(found.get("sim_dominated") if found else None),
+        ],
     ]
     if fault:
         escape = f" (e.g. {fault['escape']})" if fault.get("escape") else ""
