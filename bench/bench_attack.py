@@ -181,6 +181,10 @@ def readme_path(args: argparse.Namespace) -> dict[str, Any]:
                 key: statistics.median(run["stages_s"][key] for run in measured) for key in measured[0]["stages_s"]
             },
             "median_graph_peak_rss_mb": statistics.median(run["resources"]["graph_peak_rss_mb"] for run in measured),
+            # the process that writes the outputs (attack.outputs_worker; None before it existed)
+            "median_outputs_peak_rss_mb": statistics.median(outputs)
+            if (outputs := [run["resources"]["outputs_peak_rss_mb"] for run in measured if "outputs_peak_rss_mb" in run["resources"]])
+            else None,
             "runs": measured,
         }
     first = runs["readme_path"][0]
@@ -190,6 +194,7 @@ def readme_path(args: argparse.Namespace) -> dict[str, Any]:
     if args.baseline is not None:
         before = runs["baseline_readme_path"][0]
         figures["readme_path_same_scores_as_baseline"] = first["scores"] == before["scores"]
+        figures["readme_path_same_digests_as_baseline"] = first["digests"] == before["digests"]
     return figures
 
 
