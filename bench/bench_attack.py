@@ -157,6 +157,12 @@ def traced(
     }
 
 
+def _median_of(runs: list[dict[str, Any]], resource: str) -> float | None:
+    """The median of a figure of summary.json's resources over the runs that have it (None when none has)."""
+    values = [run["resources"][resource] for run in runs if resource in run["resources"]]
+    return statistics.median(values) if values else None
+
+
 def readme_path(args: argparse.Namespace) -> dict[str, Any]:
     """The README's attack on the whole converted log (window 20) beside the same window cut into a bag of its
     own, alternately (and the baseline checkout's README path), each run timed from its start to its exit."""
@@ -182,9 +188,7 @@ def readme_path(args: argparse.Namespace) -> dict[str, Any]:
             },
             "median_graph_peak_rss_mb": statistics.median(run["resources"]["graph_peak_rss_mb"] for run in measured),
             # the process that writes the outputs (attack.outputs_worker; None before it existed)
-            "median_outputs_peak_rss_mb": statistics.median(outputs)
-            if (outputs := [run["resources"]["outputs_peak_rss_mb"] for run in measured if "outputs_peak_rss_mb" in run["resources"]])
-            else None,
+            "median_outputs_peak_rss_mb": _median_of(measured, "outputs_peak_rss_mb"),
             "runs": measured,
         }
     first = runs["readme_path"][0]
