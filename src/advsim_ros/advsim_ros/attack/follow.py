@@ -26,7 +26,6 @@ from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.attack_summary import StackCrash
 from advsim_ros.core.closed_loop import ControllerConfig
 from advsim_ros.core.journal import Journal, QueryRecord
-from advsim_ros.core.search.driver import NOT_SEARCHED, RERUN
 from advsim_ros.ros.launcher import Launcher, NodeSpec
 from advsim_ros.ros.monitor import AttackMonitor
 
@@ -83,12 +82,11 @@ def follow(
     lanes: Sequence[Lane],
     journal: Journal,
     progress: Callable[[dict[str, Any]], None] | None,
-    on_searched: Callable[[Sequence[QueryRecord]], None] | None = None,
+    on_journaled: Callable[[Sequence[QueryRecord]], None] | None = None,
 ) -> list[StackCrash]:
     """Spin the monitors until the attack is over; returns the stack's crashes (query, exit code).
 
-    ``on_searched`` is called once with the journal's records when the search's own queries are all in it
-    (the re-runs and controls may still run)."""
+    ``on_journaled`` is called with the journal's records whenever queries were journaled."""
     clock = checked.window.clock(checked.scenario.frame_stamps_ns.tolist())
     decision_log = int(
         checked.scenario.frame_stamps_ns[checked.window.window_start_frame + checked.window.decision_index]
@@ -115,9 +113,8 @@ def follow(
             first.monitor.node.trace("journaled", query.perturbation.query_id)
         if finished:
             last_change = time.monotonic()
-            if on_searched is not None and not options.replay_only and _search_done(journal.records, options.queries):
-                on_searched(journal.records)
-                on_searched = None
+            if on_journaled is not None:
+                on_journaled(journal.records)
             if progress is not None:
                 progress(_progress(lanes, len(journal)))
             if options.replay_only:
@@ -161,12 +158,6 @@ def follow(
         _write_stack_graph(options, first.monitor, final=True)
     journal.mark_finished()
     return crashes
-
-
-def _search_done(records: Sequence[QueryRecord], queries: int) -> bool:
-    """Whether the search's own queries are journaled: its budget's worth, or a re-run already came."""
-    searched = sum(record.algorithm not in NOT_SEARCHED for record in records)
-    return searched >= queries or any(record.algorithm == RERUN for record in records)
 
 
 def _check_processes(options: AttackOptions, lane: Lane, connected_once: bool, crashes: list[StackCrash]) -> None:

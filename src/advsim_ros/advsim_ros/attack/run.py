@@ -34,13 +34,11 @@ from advsim_ros.adapters.profile import StackProfile
 from advsim_ros.attack.checks import Preflight, preflight
 from advsim_ros.attack.options import AttackError, AttackOptions
 from advsim_ros.attack.params import merge_parameters, node_files, node_parameters
-from advsim_ros.attack.summary import recorded_query
 from advsim_ros.core.atomic import write_json_atomically, write_text_atomically
 from advsim_ros.core.attack_summary import AttackSummary, Resources, metric
 from advsim_ros.core.digest import Digest
-from advsim_ros.core.journal import Fingerprint, Journal, QueryRecord
+from advsim_ros.core.journal import Fingerprint, Journal
 from advsim_ros.core.renamed import RENAMED_ALGORITHMS
-from advsim_ros.core.search.driver import NOT_SEARCHED
 from advsim_ros.core.search.registry import config_from_params
 from advsim_ros.io.bag import bag_layout_json
 from advsim_ros.ros.launcher import (
@@ -337,7 +335,7 @@ def _run_graph(
                 launcher.start(process)
             trace("launched")
             lanes.append(Lane(launcher, monitor, stack, specs))
-        crashes = follow(options, checked, lanes, journal, progress, _speculation(worker))
+        crashes = follow(options, checked, lanes, journal, progress, worker.journaled)
         used = {
             name if index == 0 else f"lane{index}/{name}": figures
             for index, lane in enumerate(lanes)
@@ -358,17 +356,6 @@ def _run_graph(
     summary["resources"]["outputs_cpu_s"] = worker_cpu_s
     write_json_atomically(options.out_dir.resolve() / "summary.json", summary)
     return summary
-
-
-def _speculation(worker: OutputsWorker) -> Callable[[Sequence[QueryRecord]], None]:
-    """What follow calls once the search's own queries are journaled: the worker re-simulates the best one."""
-
-    def searched(records: Sequence[QueryRecord]) -> None:
-        best = recorded_query([record for record in records if record.algorithm not in NOT_SEARCHED])
-        if best is not None and best.tracks:
-            worker.speculate(best.tracks)
-
-    return searched
 
 
 def _graph_specs(
