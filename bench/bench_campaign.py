@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import logging
 import os
 import statistics
 import subprocess
@@ -97,6 +98,7 @@ def shipping(config: Path, base: Path, queries: int) -> dict[str, Any]:
     import fsspec
     from moto.server import ThreadedMotoServer
 
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # one line per request otherwise
     server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
     host, port = server.get_host_and_port()
@@ -124,6 +126,12 @@ def shipping(config: Path, base: Path, queries: int) -> dict[str, Any]:
         "storage": "moto S3 server on loopback",
         "mb_moved_per_attack_median": statistics.median(a["mb_moved"] for a in per_attack),
         "shipping_s_per_attack_median": statistics.median(a["shipping_s"] for a in per_attack),
+        # what every attack moves, its inputs aside (uploaded once per campaign, fetched once per node)
+        "mb_outputs_per_attack_median": statistics.median(
+            sum(a[k] or 0 for k in ("sent_bytes", "streamed_bytes", "returned_bytes")) / 1e6 for a in per_attack
+        ),
+        "outputs_s_per_attack_median": statistics.median((a["send_s"] or 0) + (a["return_s"] or 0) for a in per_attack),
+        "mb_inputs_once": max(a["uploaded_bytes"] or 0 for a in per_attack) / 1e6,
         "wall_s_shared_folder": shared["wall_s"],
         "wall_s_shipped": shipped["wall_s"],
         "per_attack": per_attack,
