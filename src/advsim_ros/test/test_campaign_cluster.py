@@ -214,14 +214,16 @@ def test_two_attacks_at_once_on_two_nodes_do_not_hear_each_other(shipped: dict[s
     for entry in (json.loads(line) for line in (out / "campaign.jsonl").read_text().splitlines()[1:]):
         if "ran" in entry.get("shipping", {}):  # every try that ran to its end (not the lost one)
             folder = json.loads((out / entry["row"]["out_dir"] / "job.json").read_text())["out_dir"]
-            spans.append(
-                {**entry["shipping"]["ran"], "node": "worker" if Path(folder).is_relative_to(node) else "head"}
-            )
+            domain = json.loads((out / entry["row"]["out_dir"] / "run" / "graph.json").read_text())["ros_domain_id"]
+            where = "worker" if Path(folder).is_relative_to(node) else "head"
+            spans.append({**entry["shipping"]["ran"], "node": where, "domain": domain})
     workers, heads = [s for s in spans if s["node"] == "worker"], [s for s in spans if s["node"] == "head"]
     at_once = [
         (a, b) for a in workers for b in heads if a["started_at"] < b["ended_at"] and b["started_at"] < a["ended_at"]
     ]
     assert at_once, spans  # at least once, an attack on each node at the same time
+    for a, b in at_once:  # each graph on its own domain (one machine: the nodes share its domain locks)
+        assert "domain" not in a or a["domain"] != b["domain"]
 
 
 def _attacks_on(namespace: str) -> list[str]:
