@@ -93,11 +93,12 @@ def cluster(
         "DOMAINS": str(domains), "RESIM": str(models), "RAY": str(Path(sys.executable).parent / "ray"),
         "TMPDIR": str(node / "tmp"), "ADVSIM_CACHE_DIR": str(node / "cache"), "RAY_TMPDIR": "/tmp",
     }  # fmt: skip
-    worker = subprocess.Popen(
-        ["unshare", "--mount", "--propagation", "private", "sh", "-c", HIDE_AND_JOIN],
-        env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-        start_new_session=True,
-    )  # fmt: skip
+    log = tmp_path_factory.mktemp("worker_node") / "ray_start.log"  # opened here: written from the node's side
+    with log.open("wb") as output:
+        worker = subprocess.Popen(
+            ["unshare", "--mount", "--propagation", "private", "sh", "-c", HIDE_AND_JOIN],
+            env=env, stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
     namespace = None
     try:
         assert wait_for(lambda: _namespace_of(worker.pid) != _namespace_of(os.getpid()), timeout=30)
@@ -108,7 +109,7 @@ def cluster(
         try:
             nodes = ray.nodes  # type: ignore[no-untyped-call]
             wait_for(lambda: len([n for n in nodes() if n["Alive"]]) == 2 or worker.poll() is not None, 120)
-            assert len([n for n in nodes() if n["Alive"]]) == 2, worker.stderr.read() if worker.stderr else ""
+            assert len([n for n in nodes() if n["Alive"]]) == 2, log.read_text(errors="replace")[-3000:]
         finally:
             ray.shutdown()
         yield {"address": head.address, "worker_pid": worker.pid, "node": node, "namespace": namespace}
