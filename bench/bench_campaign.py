@@ -7,7 +7,13 @@ output folder with the shared re-simulation cache already warm (a warm-up campai
 Start-up per attack is its wall time less the wall time of its scored queries (graph start,
 model load, feasible sets). Peak memory per attack: its graph's processes and its orchestrator.
 
-Usage: python bench/bench_campaign.py [--windows 4] [--queries 8] [--repeats 1]
+With ``--shipping``, the same campaign (``--workers 2``) runs instead once in a shared folder (OUTDIR
+itself, as on one machine) and once shipped through an S3 storage (moto's server on loopback,
+``--storage s3://...``): the bytes each attack moved (the driver's uploads, the node's downloads and
+uploads, the streamed journal, the driver's download) and the seconds of shipping per attack, from
+each journal line's ``shipping`` record, beside both campaigns' wall times.
+
+Usage: python bench/bench_campaign.py [--windows 4] [--queries 8] [--repeats 1] [--shipping]
 Prints one JSON object. Needs ../shared/data/kitti_tracking_0000.
 """
 
@@ -16,6 +22,8 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import logging
+import os
 import statistics
 import subprocess
 import sys
@@ -57,10 +65,11 @@ def write_config(path: Path, bag: Path, windows: int, queries: int) -> Path:
     return path
 
 
-def campaign(config: Path, out: Path, workers: int) -> dict[str, Any]:
+def campaign(config: Path, out: Path, workers: int, *extra: str) -> dict[str, Any]:
     started = time.monotonic()
     subprocess.run(
-        [sys.executable, "-m", "advsim_ros.cli", "campaign", str(config), "-o", str(out), "--workers", str(workers)],
+        [sys.executable, "-m", "advsim_ros.cli", "campaign", str(config), "-o", str(out), "--workers", str(workers),
+         *extra],
         check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     wall = time.monotonic() - started
@@ -80,13 +89,70 @@ def campaign(config: Path, out: Path, workers: int) -> dict[str, Any]:
     }
 
 
+MOVED = ("uploaded_bytes", "fetched_bytes", "sent_bytes", "streamed_bytes", "returned_bytes")
+SHIPPING_S = ("upload_s", "fetch_s", "send_s", "return_s")
+
+
+def shipping(config: Path, base: Path, queries: int) -> dict[str, Any]:
+    """The campaign in a shared folder and shipped through moto's S3 server: what shipping cost per attack."""
+    import fsspec
+    from moto.server import ThreadedMotoServer
+
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # one line per request otherwise
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    endpoint = f"http://{host}:{port}"
+    os.environ.update(AWS_ENDPOINT_URL=endpoint, AWS_ACCESS_KEY_ID="bench", AWS_SECRET_ACCESS_KEY="bench")
+    os.environ.setdefault("AWS_DEFAULT_REGION", "us-east-1")
+    try:
+        fsspec.filesystem("s3").mkdir("bench")
+        shared = campaign(config, base / "shared", 2)
+        shipped = campaign(config, base / "shipped", 2, "--storage", "s3://bench/campaign")
+    finally:
+        server.stop()
+    lines = (base / "shipped" / "campaign.jsonl").read_text().splitlines()[1:]
+    records = [json.loads(line)["shipping"] for line in lines]
+    per_attack = [
+        {"mb_moved": sum(r.get(k, 0) for k in MOVED) / 1e6, "shipping_s": sum(r.get(k, 0.0) for k in SHIPPING_S),
+         **{k: r.get(k) for k in (*MOVED, *SHIPPING_S)}}
+        for r in records
+    ]  # fmt: skip
+    return {
+        "benchmark": "campaign shipping",
+        "scenario": f"kitti_tracking_0000 frames 0..{FRAMES - 1}, windows from 0 every 20 frames",
+        "attacks": len(records),
+        "algorithm": f"random, {queries} queries, no re-runs; 2 workers, one node",
+        "storage": "moto S3 server on loopback",
+        "mb_moved_per_attack_median": statistics.median(a["mb_moved"] for a in per_attack),
+        "shipping_s_per_attack_median": statistics.median(a["shipping_s"] for a in per_attack),
+        # what every attack moves, its inputs aside (uploaded once per campaign, fetched once per node)
+        "mb_outputs_per_attack_median": statistics.median(
+            sum(a[k] or 0 for k in ("sent_bytes", "streamed_bytes", "returned_bytes")) / 1e6 for a in per_attack
+        ),
+        "outputs_s_per_attack_median": statistics.median((a["send_s"] or 0) + (a["return_s"] or 0) for a in per_attack),
+        "mb_inputs_once": max(a["uploaded_bytes"] or 0 for a in per_attack) / 1e6,
+        "wall_s_shared_folder": shared["wall_s"],
+        "wall_s_shipped": shipped["wall_s"],
+        "per_attack": per_attack,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--windows", type=int, default=4)
     parser.add_argument("--queries", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--shipping", action="store_true", help="a shared folder against an S3 storage instead")
     args = parser.parse_args()
     bag = kitti_bag()
+    if args.shipping:
+        with tempfile.TemporaryDirectory(prefix="bench_campaign_") as scratch:
+            base = Path(scratch)
+            config = write_config(base / "campaign.yaml", bag, args.windows, args.queries)
+            campaign(write_config(base / "warm.yaml", bag, args.windows, 1), base / "warm", 2)  # models built, cached
+            print(json.dumps(shipping(config, base, args.queries), indent=2))
+        return
     with tempfile.TemporaryDirectory(prefix="bench_campaign_") as scratch:
         base = Path(scratch)
         config = write_config(base / "campaign.yaml", bag, args.windows, args.queries)

@@ -136,3 +136,29 @@ def test_the_storage_uri_comes_from_the_command_line_else_the_config_else_is_out
         storage_uri(config, None)
     assert Storage((tmp_path / "x").as_uri()).local_root == tmp_path / "x"
     assert Storage(str(tmp_path / "x")).local_root == tmp_path / "x"
+
+
+def test_a_running_attacks_journal_is_streamed_line_by_line_and_never_cut_mid_line(
+    storage: Storage, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from advsim_ros.campaign import shipping
+    from advsim_ros.ros.launcher import wait_for
+
+    monkeypatch.setattr(shipping, "STREAM_S", 0.05)
+    journal = tmp_path / "queries.jsonl"
+    journal.write_bytes(b'{"header": 1}\n')  # what an earlier try left: already in the storage, not sent again
+    streamer = shipping._Streamer(storage.uri, journal, "attacks/a/queries.jsonl")
+    streamer.start()
+    try:
+        with journal.open("ab") as stream:
+            stream.write(b'{"query_id": 0}\n{"query_id": 1, "cut')  # a line being written
+            stream.flush()
+            assert wait_for(lambda: storage.exists("attacks/a/queries.jsonl"), timeout=10)
+            assert storage.read_bytes("attacks/a/queries.jsonl") == b'{"header": 1}\n{"query_id": 0}\n'
+            stream.write(b'": 2}\n')
+            stream.flush()
+            expected = b'{"header": 1}\n{"query_id": 0}\n{"query_id": 1, "cut": 2}\n'
+            assert wait_for(lambda: storage.read_bytes("attacks/a/queries.jsonl") == expected, timeout=10)
+    finally:
+        streamer.stop()
+    assert not streamer.is_alive()

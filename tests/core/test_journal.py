@@ -65,3 +65,20 @@ def test_a_journal_of_simba_under_its_old_name_rs_resumes_as_simba(tmp_path: Pat
     assert [record.algorithm for record in read_records(path)] == ["simba"]
     with pytest.raises(JournalError, match="algorithm: 'simba' there, 'bo' now"):
         Journal.open(path, Fingerprint({"bag": "log", "algorithm": "bo"}))
+
+
+def test_a_journal_that_named_its_bag_by_path_resumes_when_the_bag_is_named_by_content_and_lies_there(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "queries.jsonl"
+    header = {"journal_version": 1, "fingerprint": {"bag": "/logs/drive", "seed": 0}}
+    path.write_text(json.dumps(header) + "\n", encoding="utf-8")
+    now = Fingerprint({"bag": "content:abc", "seed": 0}, former={"bag": "/logs/drive"})
+    assert Journal.open(path, now).records == []
+    with pytest.raises(JournalError, match="bag: '/logs/drive' there, 'content:abc' now"):
+        Journal.open(path, Fingerprint({"bag": "content:abc", "seed": 0}, former={"bag": "/elsewhere/drive"}))
+    path.unlink()  # a journal of now: the same content anywhere resumes, other content does not
+    Journal.open(path, Fingerprint({"bag": "content:abc", "seed": 0}, former={"bag": "/logs/drive"}))
+    assert Journal.open(path, Fingerprint({"bag": "content:abc", "seed": 0}, former={"bag": "/cache/x"})).records == []
+    with pytest.raises(JournalError, match="bag: 'content:abc' there, 'content:def' now"):
+        Journal.open(path, Fingerprint({"bag": "content:def", "seed": 0}, former={"bag": "/logs/drive"}))

@@ -26,6 +26,7 @@ SIMPLE_STACK = PROCESSES / "simple_stack.py"
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # attack_runs: helpers the attack tests share
 
 from attack_runs import attack_argv  # noqa: E402 - importable once the line above ran
+from campaign_runs import campaign_argv, campaign_config  # noqa: E402
 
 
 @pytest.fixture
@@ -143,3 +144,17 @@ def uninterrupted(kitti_window_bag: Path, tmp_path_factory: pytest.TempPathFacto
                             timeout=900, check=False)  # fmt: skip
     assert result.returncode == 0, result.stderr
     return stack, json.loads((base / "out" / "summary.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def uninterrupted_campaign(synthetic_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """campaign_runs.campaign_config's 4 attacks on synthetic_bag, run whole on a local Ray: its OUTDIR (the
+    figures a campaign killed and resumed, or run on a cluster, must report)."""
+    base = tmp_path_factory.mktemp("uninterrupted_campaign")
+    config = campaign_config(base / "campaign.yaml", synthetic_bag)
+    whole = base / "whole"
+    completed = subprocess.run(
+        campaign_argv(config, whole, "--workers", "2"), capture_output=True, text=True, timeout=1500, check=False
+    )
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    return whole

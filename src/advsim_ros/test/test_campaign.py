@@ -8,7 +8,6 @@ is read back with junitparser (not the writer's own ElementTree).
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import signal
@@ -16,33 +15,12 @@ import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
-import yaml
 from attack_runs import alive
+from campaign_runs import campaign_argv, campaign_config, result_rows
 
 from advsim_ros.ros.launcher import wait_for
-
-TIMING_COLUMNS = ("wall_s", "cpu_s", "peak_rss_mb")
-
-
-def _config(path: Path, bag: Path, failure: dict[str, Any] | None = None, queries: int = 4) -> Path:
-    values = {
-        "scenarios": [{"bag": str(bag), "windows": {"starts": [0, 20]}}],
-        "stacks": ["reference", "learned"],
-        "algorithms": {"random": queries},
-        "reruns": 0,
-        "transfer": False,
-        "failure": failure or {"collision": True, "adversarial_loss_above": 0.0},  # every scored attack
-        "parameters": {"perturber": {"num_candidates": 20000}},
-    }
-    path.write_text(yaml.safe_dump(values))
-    return path
-
-
-def _argv(config: Path, out: Path, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "advsim_ros.cli", "campaign", str(config), "-o", str(out), *extra]
 
 
 def _journaled_attacks(out: Path) -> list[str]:
@@ -72,13 +50,6 @@ def _workers_of(out: Path) -> list[int]:
     return pids
 
 
-def _rows(out: Path) -> dict[str, dict[str, str]]:
-    with (out / "results.csv").open() as stream:
-        return {
-            row["attack"]: {k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in csv.DictReader(stream)
-        }
-
-
 @pytest.fixture(scope="module")
 def ray_cluster() -> Iterator[str]:
     """Two Ray nodes on this machine (one CPU each): the address a campaign joins."""
@@ -94,13 +65,15 @@ def ray_cluster() -> Iterator[str]:
 
 
 @pytest.fixture(scope="module")
-def campaigns(ray_cluster: str, synthetic_bag: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """The campaign killed and resumed on the cluster, and the same campaign uninterrupted on a local Ray."""
+def campaigns(
+    ray_cluster: str, synthetic_bag: Path, uninterrupted_campaign: Path, tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, Path]:
+    """The campaign killed and resumed on the cluster, and the same campaign uninterrupted on a local Ray (conftest)."""
     base = tmp_path_factory.mktemp("campaign")
-    config = _config(base / "campaign.yaml", synthetic_bag)
+    config = campaign_config(base / "campaign.yaml", synthetic_bag)
     killed = base / "killed"
     driver = subprocess.Popen(
-        _argv(config, killed, "--workers", "2", "--ray-address", ray_cluster),
+        campaign_argv(config, killed, "--workers", "2", "--ray-address", ray_cluster),
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
@@ -117,17 +90,12 @@ def campaigns(ray_cluster: str, synthetic_bag: Path, tmp_path_factory: pytest.Te
     # process and graph are tied to it)
     assert wait_for(lambda: not _workers_of(killed), timeout=60), _workers_of(killed)
     resumed = subprocess.run(
-        _argv(config, killed, "--workers", "2", "--ray-address", ray_cluster),
+        campaign_argv(config, killed, "--workers", "2", "--ray-address", ray_cluster),
         capture_output=True, text=True, timeout=1500, check=False,
     )  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    whole = base / "whole"
-    uninterrupted = subprocess.run(
-        _argv(config, whole, "--workers", "2"), capture_output=True, text=True, timeout=1500, check=False
-    )
-    assert uninterrupted.returncode == 0, uninterrupted.stderr[-3000:]
     (base / "journaled_before_kill.json").write_text(json.dumps(before))
-    return {"killed": killed, "whole": whole, "base": base, "config": config}
+    return {"killed": killed, "whole": uninterrupted_campaign, "base": base, "config": config}
 
 
 @pytest.mark.slow
@@ -135,10 +103,10 @@ def test_a_campaign_killed_mid_way_and_resumed_reports_what_an_uninterrupted_one
     campaigns: dict[str, Path],
 ) -> None:
     killed, whole = campaigns["killed"], campaigns["whole"]
-    rows = _rows(killed)
+    rows = result_rows(killed)
     assert len(rows) == 4
     assert all(row["status"] == "ok" for row in rows.values())
-    assert rows == _rows(whole)  # every figure equal, the timing columns aside
+    assert rows == result_rows(whole)  # every figure equal, the timing columns aside
     assert sorted(_journaled_attacks(killed)) == sorted(f"attack/{key}" for key in rows)  # each attack once
     before = json.loads((campaigns["base"] / "journaled_before_kill.json").read_text())
     for job in before:  # finished before the kill: never started again
@@ -194,10 +162,10 @@ def test_kill_9_of_a_campaign_on_its_own_local_ray_leaves_no_process_behind(
     from advsim_ros.ros.reaper import descendants
 
     zombie_shm_segments()  # what earlier tests left
-    config = _config(tmp_path / "campaign.yaml", synthetic_bag, queries=500)  # a budget it cannot finish first
+    config = campaign_config(tmp_path / "campaign.yaml", synthetic_bag, queries=500)  # a budget it cannot finish first
     out = tmp_path / "out"
     driver = subprocess.Popen(
-        _argv(config, out, "--workers", "2"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        campaign_argv(config, out, "--workers", "2"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     try:
         # Ray's own processes, its workers, the attacks' worker processes and their graphs

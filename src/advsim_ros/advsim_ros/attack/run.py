@@ -164,7 +164,7 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
         stack.text(json.dumps(_environments(processes), sort_keys=True))
     return Fingerprint(
         {
-            "bag": str(checked.bag),
+            "bag": _bag_content(checked.bag),  # not its path: the same bag elsewhere (a node's cache) resumes
             "bag_metadata": bag.hexdigest(),
             "window_start_frame": checked.window.window_start_frame,
             "stack": " ".join(options.stack.command),
@@ -185,8 +185,21 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
             "parameters": params.hexdigest(),
             # the layout --bag-params gave (absent without: journals from before resume)
             **({"bag_params": bag_layout_json(options.bag_config)} if options.bag_config is not None else {}),
-        }
+        },
+        former={"bag": str(checked.bag)},  # journals of before: the bag's path
     )
+
+
+def _bag_content(bag: Path) -> str:
+    """The digest of a bag's content: every file's name (relative to the bag) and bytes."""
+    digest = Digest("scenario bag content")
+    files = sorted(bag.rglob("*")) if bag.is_dir() else [bag]
+    for path in (f for f in files if f.is_file()):
+        digest.text(path.relative_to(bag).as_posix() if bag.is_dir() else path.name)
+        with path.open("rb") as stream:
+            while chunk := stream.read(1 << 22):
+                digest.raw(chunk)
+    return f"content:{digest.hexdigest()}"
 
 
 def _adapter_identity(adapter: StackProfile) -> dict[str, Any]:

@@ -21,6 +21,31 @@ from advsim_ros.core.attack_summary import FindingRecord, Score
 from advsim_ros.ros.launcher import die_with_parent
 
 
+class RanOn(TypedDict):
+    """Where and when a shipped job ran: its host, its Ray node (None outside a Ray task), wall-clock times [s]."""
+
+    host: str
+    ray_node: str | None
+    started_at: float
+    ended_at: float
+
+
+class Shipping(TypedDict, total=False):
+    """What moving a shipped job cost: bytes and seconds of the driver's uploads, the node's fetches and uploads
+    (and the journal streamed meanwhile), and the driver's download; where the job ran."""
+
+    uploaded_bytes: float
+    upload_s: float
+    fetched_bytes: float
+    sent_bytes: float
+    fetch_s: float
+    send_s: float
+    streamed_bytes: float
+    returned_bytes: float
+    return_s: float
+    ran: RanOn
+
+
 class JobOutcome(TypedDict, total=False):
     """What running a job gives the driver (through Ray): ok and its result (worker.JobResult's keys), or its
     error; shipped jobs add what moving them cost. Less ok, it is the job's journal entry."""
@@ -33,7 +58,7 @@ class JobOutcome(TypedDict, total=False):
     bag: str | None
     finding: FindingRecord | None
     bag_params: Mapping[str, object]
-    shipping: dict[str, float]
+    shipping: Shipping
 
 
 def finished(result: Mapping[str, object]) -> JobOutcome:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Literal, NotRequired, TypeAlias, TypedDict, cast, overload
 
 from advsim_ros.campaign.config import CampaignError
+from advsim_ros.campaign.job import Shipping
 from advsim_ros.campaign.results import ResultsRow, TransferRow
 from advsim_ros.core.atomic import write_text_atomically
 from advsim_ros.core.attack_summary import FindingRecord, Score
@@ -29,7 +30,7 @@ VERSION = 1
 class _Entry(TypedDict):
     job: str  # attack/KEY or transfer/KEY/TARGET
     error: NotRequired[str]  # the job failed: tried again when the campaign runs again
-    shipping: NotRequired[dict[str, float]]  # shipped jobs: bytes and seconds moving its inputs and outputs
+    shipping: NotRequired[Shipping]  # shipped jobs: bytes and seconds moving its inputs and outputs
 
 
 class AttackEntry(_Entry):

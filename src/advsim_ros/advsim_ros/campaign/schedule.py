@@ -24,7 +24,7 @@ from typing import Any
 
 from advsim_ros.attack.run import search_notes
 from advsim_ros.campaign.config import AttackPlan, Campaign, CampaignError, expand, load_campaign, materialize
-from advsim_ros.campaign.job import JobOutcome, run_local_job
+from advsim_ros.campaign.job import JobOutcome, Shipping, run_local_job
 from advsim_ros.campaign.journal import JOURNAL_NAME, AttackEntry, CampaignJournal, attack_entry
 from advsim_ros.campaign.results import TransferRow, failed_row, identity_of
 from advsim_ros.campaign.shipping import bring_back, run_shipped_job, ship_job
@@ -191,7 +191,7 @@ def run_campaign(
 
     task = ray.remote(run_job).options(num_cpus=ATTACK_CPUS, memory=_attack_memory(), max_retries=0)
     uploaded: dict[Path, dict[str, str]] = {}  # inputs in the storage: path -> reference
-    sending: dict[str, dict[str, float]] = {}  # what shipping each job in flight cost the driver
+    sending: dict[str, Shipping] = {}  # what shipping each job in flight cost the driver
     try:
         in_flight: dict[Any, Job] = {}  # by Ray's ObjectRef (Ray is untyped here)
         while todo or in_flight:

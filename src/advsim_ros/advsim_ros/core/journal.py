@@ -17,7 +17,7 @@ import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +42,19 @@ class Fingerprint:
     """What makes two attacks the same attack: name -> value (strings, numbers, digests)."""
 
     values: Mapping[str, Any]
+    # what journals of before recorded instead of a value that is the same attack's now (a bag's path, before the
+    # bag's content digest): a recorded journal with either resumes
+    former: Mapping[str, Any] = field(default_factory=dict)
 
     def differences(self, other: Fingerprint) -> list[str]:
+        """Keys whose values differ (self: as recorded; other: now, with its former values)."""
         keys = sorted(set(self.values) | set(other.values))
-        return [key for key in keys if self.values.get(key) != other.values.get(key)]
+        return [
+            key
+            for key in keys
+            if self.values.get(key) != other.values.get(key)
+            and (key not in other.former or self.values.get(key) != other.former[key])
+        ]
 
 
 def _track_json(track: ActorTrack) -> dict[str, Any]:
