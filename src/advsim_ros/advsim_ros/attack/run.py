@@ -41,6 +41,7 @@ from advsim_ros.core.journal import Fingerprint, Journal
 from advsim_ros.core.renamed import RENAMED_ALGORITHMS
 from advsim_ros.core.search.registry import config_from_params
 from advsim_ros.io.bag import bag_layout_json
+from advsim_ros.io.cache import content_digest
 from advsim_ros.ros.launcher import (
     Launcher,
     NodeSpec,
@@ -164,7 +165,8 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
         stack.text(json.dumps(_environments(processes), sort_keys=True))
     return Fingerprint(
         {
-            "bag": _bag_content(checked.bag),  # not its path: the same bag elsewhere (a node's cache) resumes
+            # not its path: the same bag elsewhere (a node's cache) resumes
+            "bag": f"content:{content_digest(checked.bag)}",
             "bag_metadata": bag.hexdigest(),
             "window_start_frame": checked.window.window_start_frame,
             "stack": " ".join(options.stack.command),
@@ -188,18 +190,6 @@ def _fingerprint(options: AttackOptions, checked: Preflight) -> Fingerprint:
         },
         former={"bag": str(checked.bag)},  # journals of before: the bag's path
     )
-
-
-def _bag_content(bag: Path) -> str:
-    """The digest of a bag's content: every file's name (relative to the bag) and bytes."""
-    digest = Digest("scenario bag content")
-    files = sorted(bag.rglob("*")) if bag.is_dir() else [bag]
-    for path in (f for f in files if f.is_file()):
-        digest.text(path.relative_to(bag).as_posix() if bag.is_dir() else path.name)
-        with path.open("rb") as stream:
-            while chunk := stream.read(1 << 22):
-                digest.raw(chunk)
-    return f"content:{digest.hexdigest()}"
 
 
 def _adapter_identity(adapter: StackProfile) -> dict[str, Any]:
