@@ -44,6 +44,7 @@ class LabelledTrack:
     height: float  # top above the ground [m]
     static_spread: float  # static tracks: median distance of the detections from their centre [m]
     rows: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))  # its candidates (pipeline's numbering)
+    lift: float = 0.0  # vehicles: median height of its own ground above the lowest ground nearby [m]
 
     @property
     def accepted(self) -> bool:
@@ -69,6 +70,33 @@ def reanchor(boxes: FloatArray, sensor_xy: FloatArray, length: float, width: flo
         side = np.sign(np.sum((sensor_xy - centre) * axis, axis=1))  # +1: the sensor is on the +axis side
         centre = centre - (side * 0.5 * (size - extent))[:, None] * axis
     return centre
+
+
+def _pose(
+    static: bool,
+    centres: FloatArray,
+    states: FloatArray,
+    frames: IntArray,
+    shape_yaw: float,
+    ego_yaws: FloatArray,
+    static_speed: float,
+) -> tuple[FloatArray, FloatArray, float]:
+    """xy (S, 2) [m], yaws (S,) [rad] over the span, and the static spread [m] (0 when moving)."""
+    span = frames.shape[0]
+    if static:
+        centre = np.median(centres, axis=0)
+        spread = float(np.median(np.linalg.norm(centres - centre, axis=1)))
+        direction = float(np.angle(np.mean(np.exp(1j * ego_yaws[frames]))))  # the ego's mean heading meanwhile
+        yaw = shape_yaw if abs(float(wrap_angle(shape_yaw - direction))) <= 0.5 * np.pi else shape_yaw + np.pi
+        return np.tile(centre, (span, 1)), np.full(span, float(wrap_angle(yaw))), spread
+    speed = np.hypot(states[:, 2], states[:, 3])
+    motion = np.arctan2(states[:, 3], states[:, 2])
+    # Where the track slows below the static speed its motion heading is noise: hold the nearest good one.
+    good = np.flatnonzero(speed >= static_speed)
+    if not good.size:
+        return states[:, :2], np.full(span, shape_yaw), 0.0
+    nearest = good[np.abs(np.arange(span)[:, None] - good[None, :]).argmin(axis=1)]
+    return states[:, :2], np.asarray(wrap_angle(motion[nearest]), dtype=np.float64), 0.0
 
 
 def refine_track(
@@ -105,29 +133,19 @@ def refine_track(
     displacement = float(np.linalg.norm(smoothed.states[-1, :2] - smoothed.states[0, :2]))
     static = bool(np.median(speed) < gates.static_speed and displacement < gates.static_displacement)
     shape_yaw = _axial_mean(boxes[:, 2], weights)
-    spread = 0.0
-    if static:
-        centre = np.median(centres, axis=0)
-        spread = float(np.median(np.linalg.norm(centres - centre, axis=1)))
-        xy = np.tile(centre, (span, 1))
-        direction = float(np.angle(np.mean(np.exp(1j * ego_yaws[frames]))))  # the ego's mean heading meanwhile
-        yaw = shape_yaw if abs(float(wrap_angle(shape_yaw - direction))) <= 0.5 * np.pi else shape_yaw + np.pi
-        yaws = np.full(span, float(wrap_angle(yaw)))
-    else:
-        xy = smoothed.states[:, :2]
-        motion = np.arctan2(smoothed.states[:, 3], smoothed.states[:, 2])
-        # Where the track slows below the static speed its motion heading is noise: hold the nearest good one.
-        good = speed >= gates.static_speed
-        if np.any(good):
-            index = np.arange(span)
-            nearest = np.flatnonzero(good)[np.abs(index[:, None] - np.flatnonzero(good)[None, :]).argmin(axis=1)]
-            yaws = np.asarray(wrap_angle(motion[nearest]), dtype=np.float64)
-        else:
-            yaws = np.full(span, shape_yaw)
+    limit = np.sin(np.deg2rad(gates.max_heading_misalignment_deg))
+
+    def misaligned(yaws: FloatArray) -> bool:
+        """A moving vehicle moves along its box: the detected headings disagree with the motion's."""
+        misalignment = np.abs(np.sin(boxes[:, 2] - yaws[candidates.frames[rows] - frames[0]]))
+        return bool(float(np.median(misalignment)) > limit)
+
+    xy, yaws, spread = _pose(static, centres, smoothed.states, frames, shape_yaw, ego_yaws, gates.static_speed)
     z = np.interp(frames, candidates.frames[rows], candidates.z[rows])
     detections = int(np.unique(candidates.frames[rows]).shape[0])
     ratio = detections / span
     confidence = float(np.mean(candidates.confidences[rows]) * ratio * class_share)
+    lift = float(np.median(candidates.lifts[rows]))
     rejected: list[str] = []
     if detections < gates.min_detections:
         rejected.append("min_detections")
@@ -146,15 +164,15 @@ def refine_track(
         top = gates.long_vehicle_height if long else gates.vehicle_height[1]
         if not gates.vehicle_height[0] <= height <= top:
             rejected.append("vehicle_height")
+        # Its ground 1 m up (the bottom of a hedge seen over parked cars): its top is that much higher too.
+        if lift > gates.max_ground_lift and height + lift > top:
+            rejected.append("max_ground_lift")
         if long and width < gates.long_vehicle_width:
             rejected.append("long_vehicle_width")
         if static and spread > gates.max_static_spread:
             rejected.append("max_static_spread")
-        if not static:
-            misalignment = np.abs(np.sin(boxes[:, 2] - yaws[candidates.frames[rows] - frames[0]]))
-            limit = np.sin(np.deg2rad(gates.max_heading_misalignment_deg))
-            if float(np.median(misalignment)) > limit:
-                rejected.append("max_heading_misalignment_deg")
+        if not static and misaligned(yaws):
+            rejected.append("max_heading_misalignment_deg")
     track = ActorTrack(
         actor_id=track_id,
         actor_class=actor_class,
@@ -174,4 +192,5 @@ def refine_track(
         height=height,
         static_spread=spread,
         rows=np.asarray(rows, dtype=np.int64),
+        lift=lift,
     )
