@@ -7,8 +7,8 @@ first and after its last sweep, every sweep whose candidates of any class (not t
 accepted track) have their centres in that box and at least ``tracker.min_points`` returns
 between them supports the box there. The track grows over supported sweeps while the gaps
 between them are at most ``tracker.max_misses`` sweeps, by at most its own span each way (the
-pieces confirm a box its own detections found), and stops where another accepted track of its
-class would overlap it.
+pieces confirm a box its own detections found), and stops where another accepted track (a
+second vehicle, a pedestrian or cyclist) would overlap it.
 """
 
 from __future__ import annotations
@@ -81,10 +81,10 @@ def extend_static(
         grown = dataclasses.replace(
             track, stamps_ns=stamps[start : end + 1], centers=track.centers[nearest], yaws=track.yaws[nearest]
         )
-        # Never into frames where another accepted vehicle overlaps it: cut back to the original span there.
+        # Never into frames where another accepted track overlaps it (a second vehicle, a pedestrian inside it).
         clash = np.zeros(span, dtype=bool)
         for other in accepted:
-            if other != index and result[other].track.actor_class is ActorClass.VEHICLE:
+            if other != index:
                 clash |= overlap_frames(grown, result[other].track, margin)
         own = np.arange(start, end + 1)
         before = np.flatnonzero(clash & (own < first))
