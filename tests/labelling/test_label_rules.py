@@ -220,3 +220,18 @@ def test_params_file_documents_the_defaults_and_a_partial_detector_section_keeps
     detector = load_labelling_config(partial).detector
     assert detector.min_points == 7
     assert detector.vehicle_length == (2.4, 18.0)  # not the stack's 7.5 m
+
+
+def test_a_parked_cars_track_is_not_extended_over_a_pedestrian_inside_its_box() -> None:
+    """A walker crosses the car's spot at frames 6-10 (before the car is seen whole): the track stops after."""
+    centre = np.array([[20.0, 6.0]])
+    car = _candidates(ActorClass.VEHICLE, list(range(20, FRAMES)), np.repeat(centre, 20, axis=0), (4.0, 1.7), 120)
+    pieces = _candidates(ActorClass.OTHER, list(range(2, 20)), np.tile([18.7, 5.8], (18, 1)), (0.5, 0.5), 20)
+    walk = np.column_stack([np.full(14, 20.5), 2.0 + 0.5 * np.arange(14)])  # 5 m/s across y = 6 at frame 8
+    walker = _candidates(ActorClass.PEDESTRIAN, list(range(0, 14)), walk, (0.6, 0.6), 30)
+    result = _label(car, pieces, walker)
+    assert len(_accepted(result, ActorClass.PEDESTRIAN)) == 1
+    vehicles = _accepted(result, ActorClass.VEHICLE)
+    assert len(vehicles) == 1
+    assert int(np.searchsorted(STAMPS, vehicles[0].stamps_ns[0])) == 11  # after the walker's last frame inside (10)
+    assert small_inside_vehicles(result.actors) == 0
