@@ -72,33 +72,6 @@ def reanchor(boxes: FloatArray, sensor_xy: FloatArray, length: float, width: flo
     return centre
 
 
-def _pose(
-    static: bool,
-    centres: FloatArray,
-    states: FloatArray,
-    frames: IntArray,
-    shape_yaw: float,
-    ego_yaws: FloatArray,
-    static_speed: float,
-) -> tuple[FloatArray, FloatArray, float]:
-    """xy (S, 2) [m], yaws (S,) [rad] over the span, and the static spread [m] (0 when moving)."""
-    span = frames.shape[0]
-    if static:
-        centre = np.median(centres, axis=0)
-        spread = float(np.median(np.linalg.norm(centres - centre, axis=1)))
-        direction = float(np.angle(np.mean(np.exp(1j * ego_yaws[frames]))))  # the ego's mean heading meanwhile
-        yaw = shape_yaw if abs(float(wrap_angle(shape_yaw - direction))) <= 0.5 * np.pi else shape_yaw + np.pi
-        return np.tile(centre, (span, 1)), np.full(span, float(wrap_angle(yaw))), spread
-    speed = np.hypot(states[:, 2], states[:, 3])
-    motion = np.arctan2(states[:, 3], states[:, 2])
-    # Where the track slows below the static speed its motion heading is noise: hold the nearest good one.
-    good = np.flatnonzero(speed >= static_speed)
-    if not good.size:
-        return states[:, :2], np.full(span, shape_yaw), 0.0
-    nearest = good[np.abs(np.arange(span)[:, None] - good[None, :]).argmin(axis=1)]
-    return states[:, :2], np.asarray(wrap_angle(motion[nearest]), dtype=np.float64), 0.0
-
-
 def refine_track(
     track_id: str,
     rows: IntArray,
@@ -133,14 +106,25 @@ def refine_track(
     displacement = float(np.linalg.norm(smoothed.states[-1, :2] - smoothed.states[0, :2]))
     static = bool(np.median(speed) < gates.static_speed and displacement < gates.static_displacement)
     shape_yaw = _axial_mean(boxes[:, 2], weights)
-    limit = np.sin(np.deg2rad(gates.max_heading_misalignment_deg))
-
-    def misaligned(yaws: FloatArray) -> bool:
-        """A moving vehicle moves along its box: the detected headings disagree with the motion's."""
-        misalignment = np.abs(np.sin(boxes[:, 2] - yaws[candidates.frames[rows] - frames[0]]))
-        return bool(float(np.median(misalignment)) > limit)
-
-    xy, yaws, spread = _pose(static, centres, smoothed.states, frames, shape_yaw, ego_yaws, gates.static_speed)
+    spread = 0.0
+    if static:
+        centre = np.median(centres, axis=0)
+        spread = float(np.median(np.linalg.norm(centres - centre, axis=1)))
+        xy = np.tile(centre, (span, 1))
+        direction = float(np.angle(np.mean(np.exp(1j * ego_yaws[frames]))))  # the ego's mean heading meanwhile
+        yaw = shape_yaw if abs(float(wrap_angle(shape_yaw - direction))) <= 0.5 * np.pi else shape_yaw + np.pi
+        yaws = np.full(span, float(wrap_angle(yaw)))
+    else:
+        xy = smoothed.states[:, :2]
+        motion = np.arctan2(smoothed.states[:, 3], smoothed.states[:, 2])
+        # Where the track slows below the static speed its motion heading is noise: hold the nearest good one.
+        good = speed >= gates.static_speed
+        if np.any(good):
+            index = np.arange(span)
+            nearest = np.flatnonzero(good)[np.abs(index[:, None] - np.flatnonzero(good)[None, :]).argmin(axis=1)]
+            yaws = np.asarray(wrap_angle(motion[nearest]), dtype=np.float64)
+        else:
+            yaws = np.full(span, shape_yaw)
     z = np.interp(frames, candidates.frames[rows], candidates.z[rows])
     detections = int(np.unique(candidates.frames[rows]).shape[0])
     ratio = detections / span
@@ -171,8 +155,11 @@ def refine_track(
             rejected.append("long_vehicle_width")
         if static and spread > gates.max_static_spread:
             rejected.append("max_static_spread")
-        if not static and misaligned(yaws):
-            rejected.append("max_heading_misalignment_deg")
+        if not static:
+            misalignment = np.abs(np.sin(boxes[:, 2] - yaws[candidates.frames[rows] - frames[0]]))
+            limit = np.sin(np.deg2rad(gates.max_heading_misalignment_deg))
+            if float(np.median(misalignment)) > limit:
+                rejected.append("max_heading_misalignment_deg")
     track = ActorTrack(
         actor_id=track_id,
         actor_class=actor_class,
