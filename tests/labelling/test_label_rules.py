@@ -2,11 +2,14 @@
 
 No pedestrian inside a vehicle's box; two tracks of one object merged into one; a truck or a tanker up
 to 18 m labelled as one vehicle; no track from candidates with fewer returns than the documented
-minimum (``tracker.min_points``, ``tracker.min_small_points``); path-length ratio of an odometry.
+minimum (``tracker.min_points``, ``tracker.min_small_points``); no vehicle from a hedge seen over parked
+cars (``gates.max_ground_lift``); a parked car's track over the sweeps that show only pieces of it
+(``tracker.extend_static``); path-length ratio of an odometry.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +44,7 @@ def _candidates(
         confidences=np.full(count, points / (points + 60.0)),
         num_points=np.full(count, points, dtype=np.int64),
         sensor_xy=np.zeros((count, 2)),
+        lifts=np.zeros(count),
     )
 
 
@@ -133,6 +137,69 @@ def test_a_truck_or_tanker_up_to_18_m_is_labelled_as_one_vehicle(length: float) 
     assert vehicles[0].centers[0, :2] == pytest.approx([8.0 + length / 2, 6.0], abs=0.3)
 
 
+def _hedge_behind_a_parked_car() -> np.ndarray:
+    """A sweep (sensor frame, LiDAR 1.7 m up) of a parked car at y = 7 m and, 4 m behind it, a 2.8 m hedge.
+
+    The road is seen up to y = 8.6 m; beyond, the cars hide the ground and the hedge's lower metre, so
+    the only returns in the hedge's 2 m ground cell are the hedge's own, from 1 m up.
+    """
+    road = np.array([[x, y, 0.0] for x in np.arange(-30.0, 40.0, 0.4) for y in np.arange(-20.0, 8.6, 0.4)])
+    car = _box_surface((12.0, 7.0), (4.2, 1.8, 1.5))
+    hedge = np.array([[x, 11.0, z] for x in np.arange(16.0, 20.0, 0.1) for z in np.arange(1.0, 2.8, 0.1)])
+    result: np.ndarray = np.vstack([road, car, hedge]) - [0.0, 0.0, 1.7]
+    return result
+
+
+@pytest.mark.parametrize("max_ground_lift", [0.6, 100.0])
+def test_a_hedge_seen_over_parked_cars_is_no_vehicle(max_ground_lift: float) -> None:
+    """Its cluster is car-sized and 1.8 m tall above its own (too high) ground: only its ground lift shows it.
+
+    With the gate (0.6 m) the hedge is dropped and the car kept; without it (100 m: the old labeller) both
+    are vehicles.
+    """
+    config = LabellingConfig()
+    config = dataclasses.replace(config, gates=dataclasses.replace(config.gates, max_ground_lift=max_ground_lift))
+    sensor = np.eye(4)
+    sensor[2, 3] = 1.7
+    points = _hedge_behind_a_parked_car()
+    parts = [detect_sweep(points, POSES[frame], sensor, frame, config) for frame in range(10)]
+    result = label_candidates(concatenate(parts), STAMPS[:10], POSES[:10], config)
+    vehicles = sorted(actor.centers[0, 1] for actor in _accepted(result, ActorClass.VEHICLE))
+    hedge = [item for item in result.tracks if item.track.centers[0, 1] > 10.0]
+    assert len(hedge) == 1
+    assert hedge[0].lift == pytest.approx(1.0, abs=0.15)
+    assert hedge[0].height < config.gates.vehicle_height[1]  # passes the height gate on its own ground
+    if max_ground_lift < 1.0:
+        assert vehicles == [pytest.approx(7.0, abs=0.5)]
+        assert hedge[0].rejected == ("max_ground_lift",)
+    else:
+        assert len(vehicles) == 2
+
+
+@pytest.mark.parametrize("extend", [True, False])
+def test_a_parked_car_is_labelled_from_the_first_sweep_that_shows_pieces_of_it(extend: bool) -> None:
+    """Far away the car is two 10-return pieces a sweep (classed pedestrian, other); close, a car from frame 20.
+
+    Extended, its track starts at frame 2 (pieces at frames 5-19 with a gap of 3 sweeps, and a lone 30-return
+    piece at frame 2: gaps within max_misses); without (the old labeller) at frame 20.
+    """
+    config = LabellingConfig()
+    config = dataclasses.replace(config, tracker=dataclasses.replace(config.tracker, extend_static=extend))
+    centre = np.array([[20.0, 6.0]])
+    car = _candidates(ActorClass.VEHICLE, list(range(20, FRAMES)), np.repeat(centre, 20, axis=0), (4.0, 1.7), 120)
+    early = [frame for frame in range(5, 20) if frame not in (10, 11, 12)]
+    front = _candidates(ActorClass.PEDESTRIAN, early, np.tile([21.2, 6.3], (len(early), 1)), (0.6, 0.6), 10)
+    back = _candidates(ActorClass.OTHER, early, np.tile([18.7, 5.8], (len(early), 1)), (0.5, 0.5), 10)
+    lone = _candidates(ActorClass.OTHER, [2], centre, (0.5, 0.5), 30)  # 2 sweeps before the first pieces
+    result = label_candidates(concatenate([car, front, back, lone]), STAMPS, POSES, config)
+    vehicles = _accepted(result, ActorClass.VEHICLE)
+    assert len(vehicles) == 1
+    first = int(np.searchsorted(STAMPS, vehicles[0].stamps_ns[0]))
+    assert first == (2 if extend else 20)
+    assert vehicles[0].stamps_ns[-1] == STAMPS[-1]
+    assert np.ptp(vehicles[0].centers[:, :2], axis=0) == pytest.approx([0.0, 0.0])
+
+
 def test_path_length_ratio_measures_the_scale_of_an_odometry() -> None:
     reference = np.tile(np.eye(4), (30, 1, 1))
     reference[:, 0, 3] = 0.5 * np.arange(30)
@@ -153,3 +220,18 @@ def test_params_file_documents_the_defaults_and_a_partial_detector_section_keeps
     detector = load_labelling_config(partial).detector
     assert detector.min_points == 7
     assert detector.vehicle_length == (2.4, 18.0)  # not the stack's 7.5 m
+
+
+def test_a_parked_cars_track_is_not_extended_over_a_pedestrian_inside_its_box() -> None:
+    """A walker crosses the car's spot at frames 6-10 (before the car is seen whole): the track stops after."""
+    centre = np.array([[20.0, 6.0]])
+    car = _candidates(ActorClass.VEHICLE, list(range(20, FRAMES)), np.repeat(centre, 20, axis=0), (4.0, 1.7), 120)
+    pieces = _candidates(ActorClass.OTHER, list(range(2, 20)), np.tile([18.7, 5.8], (18, 1)), (0.5, 0.5), 20)
+    walk = np.column_stack([np.full(14, 20.5), 2.0 + 0.5 * np.arange(14)])  # 5 m/s across y = 6 at frame 8
+    walker = _candidates(ActorClass.PEDESTRIAN, list(range(0, 14)), walk, (0.6, 0.6), 30)
+    result = _label(car, pieces, walker)
+    assert len(_accepted(result, ActorClass.PEDESTRIAN)) == 1
+    vehicles = _accepted(result, ActorClass.VEHICLE)
+    assert len(vehicles) == 1
+    assert int(np.searchsorted(STAMPS, vehicles[0].stamps_ns[0])) == 11  # after the walker's last frame inside (10)
+    assert small_inside_vehicles(result.actors) == 0

@@ -35,6 +35,7 @@ class OfflineTrackerConfig:
     link_distance: float = 2.0  # ... when each one's smoothed motion reaches the other within this [m]
     min_points: int = 15  # a vehicle candidate with fewer returns is never tracked: no track starts from it [1]
     min_small_points: int = 10  # the same for pedestrian and cyclist candidates [1]
+    extend_static: bool = True  # parked vehicles' tracks grow over sweeps with pieces of them (labelling/extend.py)
 
     def __post_init__(self) -> None:
         _positive(
@@ -64,6 +65,8 @@ class GateConfig:
     long_vehicle_length: float = 7.0  # vehicle tracks at least this long are trucks, buses, tankers ... [m]
     long_vehicle_height: float = 4.3  # ... whose top may reach this high [m]
     long_vehicle_width: float = 2.2  # ... and who are at least this wide (walls, fences, hedges seen side-on: thin) [m]
+    ground_radius: float = 6.0  # a vehicle's ground is the lowest ground seen this close to its centre [m]
+    max_ground_lift: float = 0.6  # a vehicle track whose own ground sits higher above that is not on the road [m]
     max_static_spread: float = 0.7  # median distance of a static track's detections from their median centre [m]
     static_speed: float = 0.8  # tracks whose smoothed speed stays below this are static [m/s]
     static_displacement: float = 1.5  # ... and whose net displacement is below this [m]
@@ -90,6 +93,8 @@ class GateConfig:
             long_vehicle_length=self.long_vehicle_length,
             long_vehicle_height=self.long_vehicle_height,
             long_vehicle_width=self.long_vehicle_width,
+            ground_radius=self.ground_radius,
+            max_ground_lift=self.max_ground_lift,
         )
         if self.inside_margin < 0.0:
             raise ScenarioError(f"labelling gates inside_margin: must be >= 0, got {self.inside_margin}")

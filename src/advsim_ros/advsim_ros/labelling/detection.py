@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from advsim_ros.core.geometry import wrap_angle
 from advsim_ros.core.types import ActorClass, FloatArray, IntArray
@@ -34,6 +35,7 @@ class Candidates:
     confidences: FloatArray  # (K,) detector score in [0, 1]
     num_points: IntArray  # (K,) returns in the cluster
     sensor_xy: FloatArray  # (K, 2) the sensor's world position when the box was seen [m]
+    lifts: FloatArray  # (K,) vehicles: how far the cluster's ground sits above the lowest ground nearby [m]
 
     @property
     def count(self) -> int:
@@ -42,7 +44,7 @@ class Candidates:
     def take(self, rows: IntArray) -> Candidates:
         return Candidates(
             self.frames[rows], self.boxes[rows], self.z[rows], self.heights[rows], self.classes[rows],
-            self.confidences[rows], self.num_points[rows], self.sensor_xy[rows],
+            self.confidences[rows], self.num_points[rows], self.sensor_xy[rows], self.lifts[rows],
         )  # fmt: skip
 
 
@@ -70,6 +72,23 @@ def _full_tops(xyz_ego: FloatArray, boxes: FloatArray, ground_z: FloatArray) -> 
     return tops
 
 
+def _nearby_ground(ground: FloatArray, centres: FloatArray, radius: float) -> FloatArray:
+    """(K,) the 0.1 quantile of the heights of the ground returns within radius of each centre (ego frame) [m].
+
+    The ground grid takes each 2 m cell's lowest return; behind a row of parked cars the road is hidden,
+    so the lowest return there is the bottom of what shows above the cars (a hedge, a wall) and that
+    "ground" is 1 m or more too high. The road beside the cars, a few metres away, is visible.
+    """
+    result = np.full(centres.shape[0], np.nan)
+    if ground.shape[0] == 0:
+        return result
+    tree = cKDTree(ground[:, :2])
+    for index, near in enumerate(tree.query_ball_point(centres, radius)):
+        if len(near) >= 5:
+            result[index] = float(np.quantile(ground[near, 2], 0.1))
+    return result
+
+
 def detect_sweep(
     xyz_sensor: FloatArray, world_T_ego: FloatArray, ego_T_sensor: FloatArray, frame: int, config: LabellingConfig
 ) -> Candidates:
@@ -89,6 +108,13 @@ def detect_sweep(
         long, found.num_points / (found.num_points + config.detector.confidence_points), found.confidences
     )
     heights = found.heights.copy()
+    lifts = np.zeros(found.count)
+    vehicles = np.flatnonzero(found.classes == VEHICLE_CODE)
+    if vehicles.size:
+        ground = split.xyz[split.is_ground].astype(np.float64)
+        cluster_ground = found.z[vehicles] - 0.5 * found.heights[vehicles]
+        nearby = _nearby_ground(ground, found.boxes[vehicles, :2], config.gates.ground_radius)
+        lifts[vehicles] = np.nan_to_num(cluster_ground - nearby)  # no ground seen nearby: no evidence
     if np.any(long):
         ground_z = found.z[long] - 0.5 * found.heights[long]
         heights[long] = _full_tops(xyz_ego.astype(np.float64), found.boxes[long], ground_z)
@@ -101,6 +127,7 @@ def detect_sweep(
         confidences=confidences,
         num_points=found.num_points,
         sensor_xy=np.tile(sensor_xy, (found.count, 1)),
+        lifts=lifts,
     )
 
 
@@ -109,10 +136,10 @@ def concatenate(parts: list[Candidates]) -> Candidates:
         empty = np.zeros(0)
         return Candidates(
             np.zeros(0, np.int64), np.zeros((0, 5)), empty, empty, np.zeros(0, np.int64), empty,
-            np.zeros(0, np.int64), np.zeros((0, 2)),
+            np.zeros(0, np.int64), np.zeros((0, 2)), empty,
         )  # fmt: skip
     return Candidates(*(np.concatenate([getattr(part, name) for part in parts]) for name in _FIELDS))
 
 
-_FIELDS = ("frames", "boxes", "z", "heights", "classes", "confidences", "num_points", "sensor_xy")
+_FIELDS = ("frames", "boxes", "z", "heights", "classes", "confidences", "num_points", "sensor_xy", "lifts")
 VEHICLE_CODE = CLASS_ORDER.index(ActorClass.VEHICLE)

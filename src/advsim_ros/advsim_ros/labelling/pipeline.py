@@ -11,6 +11,7 @@ import numpy as np
 from advsim_ros.core.types import ActorClass, ActorTrack, FloatArray, IntArray, ScenarioError
 from advsim_ros.labelling.config import LabellingConfig
 from advsim_ros.labelling.detection import Candidates, concatenate, detect_sweep
+from advsim_ros.labelling.extend import extend_static
 from advsim_ros.labelling.overlaps import gate_overlaps, merge_duplicates
 from advsim_ros.labelling.refine import LabelledTrack, refine_track
 from advsim_ros.labelling.tracking import associate_forwards, link_fragments
@@ -77,6 +78,8 @@ def label_candidates(
             labelled.append(refine(rows[track_rows]))
     labelled.sort(key=lambda item: (int(item.track.stamps_ns[0]), item.track.actor_class.value))
     labelled = gate_overlaps(merge_duplicates(labelled, candidates, refine, config.gates), config.gates)
+    if config.tracker.extend_static:
+        labelled = extend_static(labelled, candidates, frame_stamps_ns, config)
     numbered = []
     for index, item in enumerate(labelled, start=1):
         track = item.track

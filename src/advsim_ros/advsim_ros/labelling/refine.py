@@ -44,6 +44,7 @@ class LabelledTrack:
     height: float  # top above the ground [m]
     static_spread: float  # static tracks: median distance of the detections from their centre [m]
     rows: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))  # its candidates (pipeline's numbering)
+    lift: float = 0.0  # vehicles: median height of its own ground above the lowest ground nearby [m]
 
     @property
     def accepted(self) -> bool:
@@ -128,6 +129,7 @@ def refine_track(
     detections = int(np.unique(candidates.frames[rows]).shape[0])
     ratio = detections / span
     confidence = float(np.mean(candidates.confidences[rows]) * ratio * class_share)
+    lift = float(np.median(candidates.lifts[rows]))
     rejected: list[str] = []
     if detections < gates.min_detections:
         rejected.append("min_detections")
@@ -146,6 +148,9 @@ def refine_track(
         top = gates.long_vehicle_height if long else gates.vehicle_height[1]
         if not gates.vehicle_height[0] <= height <= top:
             rejected.append("vehicle_height")
+        # Its ground 1 m up (the bottom of a hedge seen over parked cars): its top is that much higher too.
+        if lift > gates.max_ground_lift and height + lift > top:
+            rejected.append("max_ground_lift")
         if long and width < gates.long_vehicle_width:
             rejected.append("long_vehicle_width")
         if static and spread > gates.max_static_spread:
@@ -174,4 +179,5 @@ def refine_track(
         height=height,
         static_spread=spread,
         rows=np.asarray(rows, dtype=np.int64),
+        lift=lift,
     )
