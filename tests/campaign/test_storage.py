@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from advsim_ros.campaign.config import CampaignError
-from advsim_ros.campaign.storage import MANIFEST_NAME, Storage, content_digest, storage_uri
+from advsim_ros.campaign.storage import MANIFEST_NAME, Storage, storage_uri
+from advsim_ros.io.cache import content_digest
 
 
 @pytest.fixture(params=["file", "s3"])

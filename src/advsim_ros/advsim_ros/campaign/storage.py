@@ -17,10 +17,8 @@ Keys are '/'-separated paths relative to the storage's root.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -31,33 +29,10 @@ from fsspec.implementations.local import LocalFileSystem
 from advsim_ros.campaign.config import CampaignError
 from advsim_ros.core.atomic import atomic_file, atomic_folder
 from advsim_ros.core.lidar.cache import build_lock
-from advsim_ros.io.cache import cache_root
+from advsim_ros.io.cache import cache_root, content_digest, content_files
 
 MANIFEST_NAME = "manifest.json"
 INPUTS = "inputs"
-
-
-def _files(root: Path) -> Iterator[tuple[str, Path]]:
-    """(name relative to root, path) of every file of a folder, sorted; ("", root) for a file."""
-    if root.is_file():
-        yield "", root
-        return
-    found = []
-    for folder, _, names in os.walk(root):
-        for name in names:
-            path = Path(folder) / name
-            found.append((path.relative_to(root).as_posix(), path))
-    yield from sorted(found)
-
-
-def content_digest(path: Path) -> str:
-    """The digest of a file's or a folder's content: its files' names (relative to it), sizes and bytes."""
-    digest = hashlib.sha256()
-    for name, file in _files(path):
-        with file.open("rb") as stream:
-            own = hashlib.file_digest(stream, "sha256").hexdigest()
-        digest.update(f"{name}\0{file.stat().st_size}\0{own}\n".encode())
-    return digest.hexdigest()[:32]
 
 
 class Storage:
@@ -132,7 +107,7 @@ class Storage:
     def put_tree(self, source: Path, key: str, skip: Iterable[str] = ()) -> None:
         """Upload a file, or every file of a folder under key (but those named in skip, relative to source)."""
         left_out = set(skip)
-        for name, file in _files(source):
+        for name, file in content_files(source):
             if name not in left_out:
                 self.put_file(file, f"{key}/{name}" if name else key)
 
